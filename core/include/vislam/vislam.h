@@ -1,0 +1,327 @@
+/**
+ * @file vislam.h
+ * @brief vislam core: an allocation-free visual-inertial EKF on SE(3).
+ *
+ * The estimator tracks the world-from-IMU pose T = (R, p), optional constant
+ * offsets of the two velocity inputs, and a bounded window of 3-D landmarks in
+ * one joint Gaussian. Landmarks that leave the window are marginalized exactly
+ * (their rows and columns are dropped) and handed to the caller's map sink.
+ *
+ * Memory: the caller owns the vl_estimator_t (about 3.7 MB at the default
+ * capacity of 128 landmarks, see the README); nothing in the core allocates,
+ * before or after vl_init. The core never touches the OS:
+ * every input carries its own time in microseconds, and logging goes through
+ * an injected callback, so replaying a log gives bit-identical output.
+ *
+ * Conventions:
+ * - Small matrices in this API are row-major double arrays.
+ * - The pose perturbation is on the right: T = T_hat * exp(hat(xi)), with
+ *   xi = [rho (m); phi (rad)], translation first.
+ * - Pixels are rectified, u to the right, v down.
+ */
+#ifndef VISLAM_VISLAM_H
+#define VISLAM_VISLAM_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/** Compile-time landmark capacity of the joint state (override from CMake). */
+#ifndef VL_MAX_LANDMARKS
+#define VL_MAX_LANDMARKS 128
+#endif
+
+/** Most observations one stereo frame may carry; the excess is truncated and counted. */
+#ifndef VL_MAX_FRAME_FEATURES
+#define VL_MAX_FRAME_FEATURES 256
+#endif
+
+/** Pose (6) and velocity-input offsets (6) lead the state vector. */
+#define VL_CORE_DIM 12
+/** Largest joint state dimension. */
+#define VL_STATE_DIM_MAX (VL_CORE_DIM + 3 * VL_MAX_LANDMARKS)
+/** Rows of a compressed stereo observation: u_left, mean v, u_right. */
+#define VL_OBS_DIM 3
+
+/** Status of every core call. Negative values are refusals; the estimator is unchanged. */
+typedef enum {
+    VL_OK = 0,                        /**< Done. */
+    VL_FRAME_TRUNCATED = 1,           /**< Frame had more than VL_MAX_FRAME_FEATURES observations;
+                                           the first ones were used, the rest counted. */
+    VL_ERR_NULL = -1,                 /**< A required pointer was NULL. */
+    VL_ERR_CONFIG = -2,               /**< A configuration value is out of range (see vl_config_check). */
+    VL_ERR_NOT_READY = -3,            /**< A frame arrived before the first IMU sample set the clock. */
+    VL_ERR_NON_FINITE = -4,           /**< An input holds NaN or infinity; the sample was rejected. */
+    VL_ERR_TIME_ORDER = -5,           /**< Input time is not after the previous input of its kind,
+                                           or earlier than the state; the sample was rejected. */
+    VL_ERR_NOT_POSITIVE_DEFINITE = -6,/**< The innovation covariance failed its Cholesky factorization;
+                                           the update was not applied. */
+    VL_ERR_CAPACITY = -7              /**< Output buffer too small (vl_get_landmarks). */
+} vl_status_t;
+
+/** What the estimator does with its inputs (the seed project's three parts). */
+typedef enum {
+    VL_MODE_IMU_ONLY = 0, /**< (a) Dead reckoning: prediction only. */
+    VL_MODE_MAPPING = 1,  /**< (b) Landmarks are estimated; the pose follows the prediction only. */
+    VL_MODE_SLAM = 2      /**< (c) Joint pose + landmark update. */
+} vl_mode_t;
+
+/** How a landmark's three state entries describe its position. */
+typedef enum {
+    VL_LANDMARK_XYZ = 0,          /**< World coordinates, m. */
+    VL_LANDMARK_INVERSE_DEPTH = 1 /**< [x/z, y/z, 1/z] in the left camera frame where it was first
+                                       seen (a fixed anchor): near-Gaussian for far points. */
+} vl_landmark_param_t;
+
+/** Stereo rig calibration. */
+typedef struct {
+    double fx;            /**< px */
+    double fy;            /**< px */
+    double cx;            /**< px */
+    double cy;            /**< px */
+    double baseline;      /**< m, positive */
+    double cam_T_imu[16]; /**< 4x4 row-major, IMU frame to left camera optical frame */
+} vl_calibration_t;
+
+/** A landmark as handed to the map or read from the window. */
+typedef struct {
+    int32_t id;             /**< track id from the frames */
+    double position[3];     /**< world frame, m */
+    double covariance[9];   /**< 3x3 row-major, m^2 */
+    uint32_t observations;  /**< frames that observed it, initialization included */
+    int64_t first_utime;    /**< us */
+    int64_t last_utime;     /**< us */
+} vl_landmark_t;
+
+/** Receives each landmark leaving the window. Called from vl_update / vl_flush_landmarks. */
+typedef void (*vl_landmark_sink_fn)(void *user, const vl_landmark_t *landmark);
+
+/** Log severities for the injected logger. */
+typedef enum { VL_LOG_DEBUG = 0, VL_LOG_INFO = 1, VL_LOG_WARN = 2, VL_LOG_ERROR = 3 } vl_log_level_t;
+
+/** Injected logger; the core formats nothing itself beyond a short fixed message. */
+typedef void (*vl_log_fn)(void *user, vl_log_level_t level, int64_t utime, const char *message);
+
+/** Estimator configuration. Start from vl_config_default() or vl_config_preset_seed(). */
+typedef struct {
+    vl_mode_t mode;                      /**< what to estimate */
+    vl_landmark_param_t landmark_param;  /**< landmark parameterization */
+    int estimate_input_offsets;          /**< nonzero: estimate constant velocity offsets as states */
+
+    double linear_velocity_noise;   /**< m/s, std of each linear velocity sample */
+    double angular_velocity_noise;  /**< rad/s, std of each angular velocity sample */
+    double linear_offset_prior;     /**< m/s, initial std of the linear velocity offset */
+    double angular_offset_prior;    /**< rad/s, initial std of the angular velocity offset */
+    double linear_offset_walk;      /**< m/s/sqrt(s), random walk of the linear offset */
+    double angular_offset_walk;     /**< rad/s/sqrt(s), random walk of the angular offset */
+
+    double pixel_noise;             /**< px, std of each pixel coordinate */
+    double min_disparity;           /**< px, observations with smaller u_left - u_right are refused */
+    double max_depth;               /**< m, landmarks initialized farther than this are refused */
+    double gate_chi2;               /**< Mahalanobis gate on each observation (3 dof); 0 disables */
+
+    uint32_t max_landmarks;         /**< active window, 1..VL_MAX_LANDMARKS */
+    uint32_t max_unseen_frames;     /**< frames a landmark may go unobserved before it is marginalized */
+    double max_propagation_dt;      /**< s, longer gaps are counted (time_gaps) and still propagated */
+
+    vl_calibration_t calibration;   /**< stereo rig */
+
+    vl_landmark_sink_fn landmark_sink; /**< optional: receives marginalized landmarks */
+    void *landmark_sink_user;          /**< passed to landmark_sink */
+    vl_log_fn log;                     /**< optional logger */
+    void *log_user;                    /**< passed to log */
+} vl_config_t;
+
+/** One IMU velocity sample. */
+typedef struct {
+    int64_t utime;               /**< us */
+    double linear_velocity[3];   /**< body frame, m/s */
+    double angular_velocity[3];  /**< body frame, rad/s */
+} vl_imu_sample_t;
+
+/** One stereo observation of a tracked keypoint. */
+typedef struct {
+    int32_t id;       /**< track id, unique per track */
+    double u_left;    /**< px */
+    double v_left;    /**< px */
+    double u_right;   /**< px */
+    double v_right;   /**< px */
+} vl_stereo_obs_t;
+
+/** One camera frame of stereo observations. */
+typedef struct {
+    int64_t utime;                                   /**< us */
+    uint32_t count;                                  /**< observations given (may exceed capacity) */
+    vl_stereo_obs_t obs[VL_MAX_FRAME_FEATURES];      /**< the first min(count, capacity) are read */
+} vl_stereo_frame_t;
+
+/** Pose estimate. */
+typedef struct {
+    int64_t utime;             /**< us, time of the state */
+    double rotation[9];        /**< world-from-IMU rotation, row-major */
+    double position[3];        /**< IMU origin in the world, m */
+    double covariance[36];     /**< 6x6 row-major over [rho (m), phi (rad)] */
+    double linear_velocity[3]; /**< last offset-corrected body velocity, m/s */
+    double angular_velocity[3];/**< last offset-corrected body angular velocity, rad/s */
+    double linear_offset[3];   /**< estimated linear velocity offset, m/s */
+    double angular_offset[3];  /**< estimated angular velocity offset, rad/s */
+} vl_pose_t;
+
+/** Running counters; all monotonic since vl_init. */
+typedef struct {
+    uint64_t imu_accepted;              /**< IMU samples used */
+    uint64_t imu_rejected;              /**< IMU samples refused (non-finite, time order) */
+    uint64_t frames_accepted;           /**< frames used */
+    uint64_t frames_rejected;           /**< frames refused (non-finite, time order, not ready) */
+    uint64_t frames_truncated;          /**< frames over VL_MAX_FRAME_FEATURES */
+    uint64_t observations_received;     /**< observations in accepted frames, before truncation */
+    uint64_t observations_truncated;    /**< observations dropped by truncation */
+    uint64_t observations_invalid;      /**< non-finite pixels, duplicate ids, negative ids */
+    uint64_t observations_low_disparity;/**< refused for disparity below min_disparity or depth above max_depth */
+    uint64_t observations_used;         /**< applied in an update */
+    uint64_t observations_gated;        /**< refused by the Mahalanobis gate */
+    uint64_t landmarks_initialized;     /**< admitted to the window */
+    uint64_t landmarks_deferred;        /**< admissions postponed because the window was full */
+    uint64_t landmarks_marginalized;    /**< left the window and handed to the sink */
+    uint64_t landmarks_evicted;         /**< of those, removed early to make room */
+    uint64_t numerical_failures;        /**< updates refused with VL_ERR_NOT_POSITIVE_DEFINITE */
+    uint64_t time_gaps;                 /**< propagations longer than max_propagation_dt */
+    uint32_t window_peak;               /**< most landmarks ever in the window */
+} vl_counters_t;
+
+/** Per-landmark bookkeeping of the window (internal; read with vl_get_landmarks). */
+typedef struct {
+    int32_t id;
+    uint32_t observations;
+    uint32_t unseen_frames;
+    int64_t first_utime;
+    int64_t last_utime;
+    double anchor_R[9];   /**< world-from-anchor rotation (inverse depth only) */
+    double anchor_p[3];   /**< anchor origin in the world, m (inverse depth only) */
+} vl_landmark_slot_t;
+
+/** A candidate track not yet in the window: its age orders admissions. */
+typedef struct {
+    int32_t id;
+    uint32_t frames_seen;
+    uint64_t last_frame;
+} vl_pending_track_t;
+
+/** One observation's rows of the joint update (internal workspace). */
+typedef struct {
+    double H_pose[18];     /**< 3x6 row-major, d y / d xi */
+    double H_landmark[9];  /**< 3x3 row-major, d y / d landmark state */
+    double residual[3];    /**< measured minus predicted, px */
+    double noise_var[3];   /**< observation noise diagonal, px^2 */
+    int landmark_col;      /**< first state index of the landmark */
+} vl_obs_row_t;
+
+/** Capacity of the pending-track table. */
+#define VL_MAX_PENDING (2 * VL_MAX_FRAME_FEATURES)
+
+/**
+ * The estimator. Caller-owned; treat every member as private and use the
+ * functions below. Size: sizeof(vl_estimator_t), dominated by the covariance
+ * and two update workspaces of VL_STATE_DIM_MAX^2 doubles each.
+ */
+typedef struct {
+    vl_config_t cfg;
+    vl_counters_t counters;
+
+    int initialized;
+    int have_imu;
+    int64_t state_utime;        /**< us */
+    int64_t last_imu_utime;     /**< us */
+    int64_t last_frame_utime;   /**< us */
+    uint64_t frame_index;
+
+    double R[9];                /**< world-from-IMU rotation, row-major */
+    double p[3];                /**< m */
+    double held_linear[3];      /**< raw last linear velocity sample, m/s */
+    double held_angular[3];     /**< raw last angular velocity sample, rad/s */
+    double offset_linear[3];    /**< m/s */
+    double offset_angular[3];   /**< rad/s */
+
+    uint32_t num_landmarks;
+    vl_landmark_slot_t slots[VL_MAX_LANDMARKS];
+    double landmark_state[3 * VL_MAX_LANDMARKS];
+
+    uint32_t num_pending;
+    vl_pending_track_t pending[VL_MAX_PENDING];
+
+    /** Joint covariance, column-major with leading dimension VL_STATE_DIM_MAX. */
+    double P[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX];
+
+    /** Update workspaces (P H^T, then the whitened gain; innovation covariance). */
+    double work_PHt[VL_STATE_DIM_MAX * VL_OBS_DIM * VL_MAX_LANDMARKS];
+    double work_S[(VL_OBS_DIM * VL_MAX_LANDMARKS) * (VL_OBS_DIM * VL_MAX_LANDMARKS)];
+    vl_obs_row_t work_rows[VL_MAX_LANDMARKS];
+    double work_r[VL_OBS_DIM * VL_MAX_LANDMARKS];
+    double work_R[VL_OBS_DIM * VL_MAX_LANDMARKS];
+    double work_dx[VL_STATE_DIM_MAX];
+    uint32_t work_slot[VL_MAX_LANDMARKS];
+    uint32_t work_frame_obs[VL_MAX_LANDMARKS];
+    uint8_t work_seen[VL_MAX_LANDMARKS];
+} vl_estimator_t;
+
+/** Fills the tuned default configuration (measured best on 0027; see README). */
+void vl_config_default(vl_config_t *cfg);
+
+/**
+ * Fills the seed project's noise preset: W = diag(1e-5 I3, 1e-4 I3) per 0.1 s step
+ * and V = 3500 I4, no offset states, Euclidean landmarks.
+ */
+void vl_config_preset_seed(vl_config_t *cfg);
+
+/** Checks every configuration value; VL_OK or VL_ERR_CONFIG. */
+vl_status_t vl_config_check(const vl_config_t *cfg);
+
+/** Initializes the estimator: identity pose, empty window. The config is copied. */
+vl_status_t vl_init(vl_estimator_t *e, const vl_config_t *cfg);
+
+/**
+ * Propagates the state to imu->utime with the previously held velocities,
+ * then holds this sample's velocities. The first sample sets the clock only.
+ */
+vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu);
+
+/**
+ * Applies one stereo frame: propagates to frame->utime if it is later than the
+ * state, updates with the observed window landmarks (mode SLAM or MAPPING),
+ * marginalizes landmarks whose tracks ended, and admits new ones.
+ */
+vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame);
+
+/** Reads the current pose and its marginal covariance. */
+vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out);
+
+/**
+ * Copies the landmarks now in the window into out (up to capacity).
+ * @param count set to the number in the window, even when capacity is too small
+ * @return VL_OK, or VL_ERR_CAPACITY when capacity < count (out holds the first capacity).
+ */
+vl_status_t vl_get_landmarks(const vl_estimator_t *e, vl_landmark_t *out, size_t capacity, size_t *count);
+
+/** Marginalizes every landmark in the window into the sink (end of a run). */
+vl_status_t vl_flush_landmarks(vl_estimator_t *e);
+
+/** Counters since vl_init. */
+const vl_counters_t *vl_get_counters(const vl_estimator_t *e);
+
+/** Landmarks now in the window. */
+uint32_t vl_window_size(const vl_estimator_t *e);
+
+/** Dimension of the joint state now (12 + 3 * landmarks). */
+uint32_t vl_state_dim(const vl_estimator_t *e);
+
+/** A short English description of a status value. */
+const char *vl_status_str(vl_status_t status);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* VISLAM_VISLAM_H */

@@ -1,0 +1,178 @@
+/*
+ * The Eigen shim. Everything here works on Eigen::Map views of the caller's
+ * buffers; products are written with noalias() so that Eigen creates no
+ * temporaries, and the blocking of large products is pinned by
+ * vl_la_configure() so its panels fit Eigen's stack allocation limit.
+ */
+#include "vl_linalg.h"
+
+#include "vislam/vislam.h"
+
+#include <Eigen/Core>
+#include <Eigen/Cholesky>
+
+namespace {
+
+using MatMap = Eigen::Map<Eigen::MatrixXd, 0, Eigen::OuterStride<>>;
+using ConstMatMap = Eigen::Map<const Eigen::MatrixXd, 0, Eigen::OuterStride<>>;
+using DenseMap = Eigen::Map<Eigen::MatrixXd>;
+using Mat12 = Eigen::Matrix<double, 12, 12, Eigen::RowMajor>;
+using Mat36 = Eigen::Matrix<double, 3, 6, Eigen::RowMajor>;
+using Mat33 = Eigen::Matrix<double, 3, 3, Eigen::RowMajor>;
+
+/* In the checked build every entry point forbids heap use for its whole body. */
+struct no_heap_scope {
+#ifdef EIGEN_RUNTIME_NO_MALLOC
+    no_heap_scope() { Eigen::internal::set_is_malloc_allowed(false); }
+    ~no_heap_scope() { Eigen::internal::set_is_malloc_allowed(true); }
+#endif
+};
+
+void mirror_lower_to_upper(MatMap &P)
+{
+    const Eigen::Index n = P.rows();
+    for (Eigen::Index j = 1; j < n; ++j) {
+        P.col(j).head(j) = P.row(j).head(j).transpose();
+    }
+}
+
+} // namespace
+
+extern "C" void vl_la_configure(void)
+{
+    /* Panels of at most 32 KiB (L1) / 96 KiB (L2, L3): below Eigen's default
+     * 128 KiB stack allocation limit, so GEMM, TRSM and rank updates never
+     * reach for the heap, and the blocking does not depend on the host CPU. */
+    Eigen::setCpuCacheSizes(32 * 1024, 96 * 1024, 96 * 1024);
+}
+
+extern "C" void vl_la_propagate_core(double *Pbuf, int ld, int n, const double Phi_rm[144], const double Q_rm[144])
+{
+    no_heap_scope guard;
+    MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
+    const Eigen::Map<const Mat12> Phi(Phi_rm);
+    const Eigen::Map<const Mat12> Q(Q_rm);
+
+    Mat12 core;
+    core.noalias() = Phi * P.topLeftCorner<12, 12>() * Phi.transpose();
+    core += Q;
+    P.topLeftCorner<12, 12>() = 0.5 * (core + core.transpose());
+
+    const Eigen::Index nl = n - 12;
+    if (nl > 0) {
+        /* Row block first, in 12-column panels held on the stack, then mirror. */
+        for (Eigen::Index j = 0; j < nl; j += 12) {
+            const Eigen::Index w = (nl - j < 12) ? nl - j : 12;
+            Eigen::Matrix<double, 12, Eigen::Dynamic, 0, 12, 12> panel(12, w);
+            panel.noalias() = Phi * P.block(0, 12 + j, 12, w);
+            P.block(0, 12 + j, 12, w) = panel;
+        }
+        P.bottomLeftCorner(nl, 12) = P.topRightCorner(12, nl).transpose();
+    }
+}
+
+extern "C" void vl_la_obs_covariance(const double *Pbuf, int ld, const vl_la_obs_t *obs, double S_rm[9])
+{
+    no_heap_scope guard;
+    const int n = obs->landmark_col + 3;
+    ConstMatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
+    const Eigen::Map<const Mat36> Hp(obs->H_pose);
+    const Eigen::Map<const Mat33> Hl(obs->H_landmark);
+    const int c = obs->landmark_col;
+
+    Eigen::Matrix<double, 9, 9> B;
+    B.topLeftCorner<6, 6>() = P.topLeftCorner<6, 6>();
+    B.topRightCorner<6, 3>() = P.block<6, 3>(0, c);
+    B.bottomLeftCorner<3, 6>() = P.block<3, 6>(c, 0);
+    B.bottomRightCorner<3, 3>() = P.block<3, 3>(c, c);
+    Eigen::Matrix<double, 3, 9> H;
+    H << Hp, Hl;
+    Eigen::Map<Mat33> S(S_rm);
+    S.noalias() = H * B * H.transpose();
+    S.diagonal() += Eigen::Map<const Eigen::Vector3d>(obs->noise_var);
+}
+
+extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws)
+{
+    no_heap_scope guard;
+    const Eigen::Index m = 3 * static_cast<Eigen::Index>(k);
+    MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
+    DenseMap PHt(ws->PHt, n, m);
+    DenseMap S(ws->S, m, m);
+    Eigen::Map<Eigen::VectorXd> dx(ws->dx, n);
+
+    /* P H^T from the observed columns only: each observation reads the six pose
+     * columns and its landmark's three. */
+    for (int i = 0; i < k; ++i) {
+        const Eigen::Map<const Mat36> Hp(obs[i].H_pose);
+        const Eigen::Map<const Mat33> Hl(obs[i].H_landmark);
+        auto block = PHt.middleCols<3>(3 * i);
+        block.noalias() = P.leftCols<6>() * Hp.transpose();
+        block.noalias() += P.middleCols<3>(obs[i].landmark_col) * Hl.transpose();
+    }
+
+    /* S = H (P H^T) + R, again reading only the rows each observation touches.
+     * Only the lower triangle is needed by the factorization. */
+    for (int i = 0; i < k; ++i) {
+        const Eigen::Map<const Mat36> Hp(obs[i].H_pose);
+        const Eigen::Map<const Mat33> Hl(obs[i].H_landmark);
+        const Eigen::Index rows = m - 3 * i;
+        auto block = S.block(3 * i, 3 * i, 3, rows);
+        block.noalias() = Hp * PHt.block(0, 3 * i, 6, rows);
+        block.noalias() += Hl * PHt.block(obs[i].landmark_col, 3 * i, 3, rows);
+    }
+    /* block rows were written as the upper triangle: move them to the lower. */
+    for (Eigen::Index j = 0; j < m; ++j) {
+        S.col(j).tail(m - j) = S.row(j).tail(m - j).transpose();
+    }
+    for (int i = 0; i < k; ++i) {
+        S.diagonal().segment<3>(3 * i) += Eigen::Map<const Eigen::Vector3d>(obs[i].noise_var);
+    }
+
+    Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(S);
+    if (llt.info() != Eigen::Success) {
+        return -1;
+    }
+    const auto L = S.triangularView<Eigen::Lower>();
+
+    /* Whitened innovation e = L^-1 r; the correction is dx = W e with W = P H^T L^-T. */
+    Eigen::Matrix<double, Eigen::Dynamic, 1, 0, 3 * VL_MAX_LANDMARKS, 1> e(m);
+    for (int i = 0; i < k; ++i) {
+        e.segment<3>(3 * i) = Eigen::Map<const Eigen::Vector3d>(obs[i].residual);
+    }
+    L.solveInPlace(e);
+    L.transpose().solveInPlace<Eigen::OnTheRight>(PHt);
+    dx.noalias() = PHt * e;
+
+    /* P - W W^T, computed on the lower triangle as one symmetric rank-m update
+     * and mirrored, so P stays exactly symmetric. */
+    P.selfadjointView<Eigen::Lower>().rankUpdate(PHt, -1.0);
+    mirror_lower_to_upper(P);
+    return 0;
+}
+
+extern "C" void vl_la_append_landmark(double *Pbuf, int ld, int n, const double J_pose_rm[18], const double J_obs_rm[9],
+                                      const double noise_var[3])
+{
+    no_heap_scope guard;
+    MatMap P(Pbuf, n + 3, n + 3, Eigen::OuterStride<>(ld));
+    const Eigen::Map<const Mat36> Jp(J_pose_rm);
+    const Eigen::Map<const Mat33> Jo(J_obs_rm);
+
+    P.block(n, 0, 3, n).noalias() = Jp * P.topRows<6>().leftCols(n);
+    P.block(0, n, n, 3) = P.block(n, 0, 3, n).transpose();
+    Mat33 C;
+    C.noalias() = Jp * P.topLeftCorner<6, 6>() * Jp.transpose();
+    C.noalias() += Jo * Eigen::Map<const Eigen::Vector3d>(noise_var).asDiagonal() * Jo.transpose();
+    P.block<3, 3>(n, n) = 0.5 * (C + C.transpose());
+}
+
+extern "C" void vl_la_move_block(double *Pbuf, int ld, int n, int dst, int src)
+{
+    no_heap_scope guard;
+    MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
+    /* Columns first: afterwards row src at columns dst holds P(src, src), which
+     * the row copy then carries into the diagonal block. */
+    P.middleCols<3>(dst) = P.middleCols<3>(src);
+    P.middleRows<3>(dst) = P.middleRows<3>(src);
+}

@@ -1,0 +1,72 @@
+/**
+ * @file vl_linalg.h
+ * @brief The dense linear algebra of the filter: a thin C API over Eigen (internal to core/).
+ *
+ * The joint covariance P is column-major with a fixed leading dimension ld
+ * (VL_STATE_DIM_MAX), so adding or dropping a landmark never moves the rest.
+ * Every function works in the caller's buffers and never allocates: in the
+ * checked build (EIGEN_RUNTIME_NO_MALLOC) any heap use inside Eigen aborts.
+ */
+#ifndef VISLAM_VL_LINALG_H
+#define VISLAM_VL_LINALG_H
+
+#include "vislam/vislam.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/** One observation's Jacobian blocks, residual and noise (declared in vislam.h). */
+typedef vl_obs_row_t vl_la_obs_t;
+
+/** Buffers the joint update may use; sizes in doubles. */
+typedef struct {
+    double *PHt;   /**< >= n * m */
+    double *S;     /**< >= m * m */
+    double *dx;    /**< >= n: the state correction on success */
+} vl_la_workspace_t;
+
+/**
+ * Fixes Eigen's cache-blocking sizes so that its matrix products keep their
+ * panels on the stack (no heap, identical blocking on every machine).
+ * Idempotent; vl_init calls it.
+ */
+void vl_la_configure(void);
+
+/**
+ * Propagates the leading 12 states through Phi: P_cc = Phi P_cc Phi^T + Q,
+ * P_cl = Phi P_cl, P_lc = P_cl^T (landmark blocks are unchanged).
+ * @param Phi 12x12 row-major; @param Q 12x12 row-major, symmetric.
+ */
+void vl_la_propagate_core(double *P, int ld, int n, const double Phi[144], const double Q[144]);
+
+/**
+ * Joint EKF update with k stereo observations (m = 3k rows), touching only the
+ * observed columns to form P H^T, one Cholesky factorization of S = H P H^T + R
+ * and a symmetric rank-m downdate P -= (P H^T L^-T)(P H^T L^-T)^T.
+ * @return 0 on success with ws->dx holding the correction; -1 when S is not
+ *         positive definite (P is then unchanged).
+ */
+int vl_la_update(double *P, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws);
+
+/**
+ * Appends a landmark block at state index n (P grows to n + 3):
+ * P_new,j = J_pose P_pose,j for j < n, and
+ * P_new,new = J_pose P_pose,pose J_pose^T + J_obs diag(noise_var) J_obs^T.
+ * @param J_pose 3x6 row-major (may be all zero: pose treated as known);
+ * @param J_obs 3x3 row-major.
+ */
+void vl_la_append_landmark(double *P, int ld, int n, const double J_pose[18], const double J_obs[9],
+                           const double noise_var[3]);
+
+/** Moves the 3-state block at src onto dst (rows and columns): exact marginalization of dst's old block. */
+void vl_la_move_block(double *P, int ld, int n, int dst, int src);
+
+/** 3x3 innovation covariance of one observation: H P H^T + R over its pose and landmark blocks. */
+void vl_la_obs_covariance(const double *P, int ld, const vl_la_obs_t *obs, double S[9]);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* VISLAM_VL_LINALG_H */
