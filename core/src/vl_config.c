@@ -32,6 +32,7 @@ void vl_config_default(vl_config_t *cfg)
     cfg->gate_chi2 = 16.27; /* chi-square, 3 dof, 0.999 */
 
     cfg->max_landmarks = VL_MAX_LANDMARKS;
+    cfg->min_track_length = 2;
     cfg->max_unseen_frames = 0; /* the seed's tracks have no gaps: an unseen track has ended */
     cfg->max_propagation_dt = 0.5;
 
@@ -52,6 +53,7 @@ void vl_config_preset_seed(vl_config_t *cfg)
     cfg->angular_velocity_noise = sqrt(1e-4) / 0.1;
     cfg->pixel_noise = sqrt(3500.0); /* V = 3500 I4 */
     cfg->gate_chi2 = 0.0;
+    cfg->min_track_length = 1;
     cfg->min_disparity = 1e-6;
     cfg->max_depth = 1e9;
 }
@@ -87,6 +89,9 @@ vl_status_t vl_config_check(const vl_config_t *cfg)
     }
     if (!positive_finite(cfg->min_disparity) || !positive_finite(cfg->max_depth) ||
         !non_negative_finite(cfg->gate_chi2) || !positive_finite(cfg->max_propagation_dt)) {
+        return VL_ERR_CONFIG;
+    }
+    if (cfg->min_track_length < 1) {
         return VL_ERR_CONFIG;
     }
     if (cfg->max_landmarks < 1 || cfg->max_landmarks > VL_MAX_LANDMARKS) {

@@ -95,16 +95,15 @@ static void landmark_world_point(const vl_estimator_t *e, uint32_t slot, double 
 }
 
 /*
- * Predicted compressed observation of a window landmark and its Jacobians.
- * Returns 0 when the landmark is in front of the camera.
+ * Predicted compressed observation of a world point, d y / d xi (pose, 3x6) and
+ * d y / d p_w (3x3). Returns 0 when the point is in front of the camera.
  */
-static int predict_observation(const vl_estimator_t *e, uint32_t slot, double y[3], double H_pose[18],
-                               double H_lm[9])
+static int project_world_point(const vl_estimator_t *e, const double pw[3], double y[3], double H_pose[18],
+                               double dy_dpw[9])
 {
     const vl_calibration_t *cal = &e->cfg.calibration;
-    double Rc[9], tc[3], pw[3], dpw[9];
+    double Rc[9], tc[3];
     camera_extrinsics(cal, Rc, tc);
-    landmark_world_point(e, slot, pw, dpw);
 
     /* body point b = R^T (p_w - p), camera point c = Rc b + tc */
     double d[3] = {pw[0] - e->p[0], pw[1] - e->p[1], pw[2] - e->p[2]};
@@ -121,17 +120,78 @@ static int predict_observation(const vl_estimator_t *e, uint32_t slot, double y[
     vl_stereo_project(cal, c, y, dy_dc);
 
     /* d b / d xi = -odot(b) (right perturbation of the world-from-IMU pose) */
-    double odot[18], A[9], dy_db[9];
+    double odot[18], dy_db[9];
     vl_circle_dot(b, odot);
     vl_matmul(dy_dc, Rc, dy_db, 3, 3, 3);
     vl_matmul(dy_db, odot, H_pose, 3, 3, 6);
     for (int i = 0; i < 18; ++i) {
         H_pose[i] = -H_pose[i];
     }
-    /* d b / d lambda = R^T d p_w / d lambda */
-    vl_matmul_at(e->R, dpw, A, 3, 3, 3);
-    vl_matmul(dy_db, A, H_lm, 3, 3, 3);
+    /* d b / d p_w = R^T */
+    vl_matmul_bt(dy_db, e->R, dy_dpw, 3, 3, 3);
     return 0;
+}
+
+/* Predicted observation of a window landmark and its Jacobians. */
+static int predict_observation(const vl_estimator_t *e, uint32_t slot, double y[3], double H_pose[18],
+                               double H_lm[9])
+{
+    double pw[3], dpw[9], dy_dpw[9];
+    landmark_world_point(e, slot, pw, dpw);
+    if (project_world_point(e, pw, y, H_pose, dy_dpw) != 0) {
+        return -1;
+    }
+    vl_matmul(dy_dpw, dpw, H_lm, 3, 3, 3);
+    return 0;
+}
+
+/* Squared Mahalanobis length r^T S^-1 r of a 3-vector; a non-SPD S gives infinity. */
+static double mahalanobis3(const double S[9], const double r[3])
+{
+    const double d00 = S[0];
+    if (!(d00 > 0.0)) {
+        return INFINITY;
+    }
+    const double l00 = sqrt(d00);
+    const double l10 = S[3] / l00, l20 = S[6] / l00;
+    const double d11 = S[4] - l10 * l10;
+    if (!(d11 > 0.0)) {
+        return INFINITY;
+    }
+    const double l11 = sqrt(d11);
+    const double l21 = (S[7] - l20 * l10) / l11;
+    const double d22 = S[8] - l20 * l20 - l21 * l21;
+    if (!(d22 > 0.0)) {
+        return INFINITY;
+    }
+    const double l22 = sqrt(d22);
+    const double w0 = r[0] / l00;
+    const double w1 = (r[1] - l10 * w0) / l11;
+    const double w2 = (r[2] - l20 * w0 - l21 * w1) / l22;
+    return w0 * w0 + w1 * w1 + w2 * w2;
+}
+
+/* World point and its pixel-noise covariance from one compressed observation at the current pose. */
+static void triangulate_world(const vl_estimator_t *e, const double y[3], double pw[3], double C[9])
+{
+    const vl_calibration_t *cal = &e->cfg.calibration;
+    double Rc[9], tc[3], c[3], dc_dy[9], d[3], b[3], J[9], RRc[9], tmp[9];
+    camera_extrinsics(cal, Rc, tc);
+    vl_stereo_triangulate(cal, y, c, dc_dy);
+    for (int i = 0; i < 3; ++i) {
+        d[i] = c[i] - tc[i];
+    }
+    vl_matmul_at(Rc, d, b, 3, 3, 1);
+    vl_matmul(e->R, b, pw, 3, 3, 1);
+    for (int i = 0; i < 3; ++i) {
+        pw[i] += e->p[i];
+    }
+    vl_matmul_bt(e->R, Rc, RRc, 3, 3, 3);
+    vl_matmul(RRc, dc_dy, J, 3, 3, 3);
+    const double s2 = e->cfg.pixel_noise * e->cfg.pixel_noise;
+    const double noise[9] = {s2, 0, 0, 0, 0.5 * s2, 0, 0, 0, s2};
+    vl_matmul(J, noise, tmp, 3, 3, 3);
+    vl_matmul_bt(tmp, J, C, 3, 3, 3);
 }
 
 /* ---------------------------------------------------------------- prediction */
@@ -456,6 +516,43 @@ static double depth_of(const vl_calibration_t *cal, double disparity)
     return cal->fx * cal->baseline / disparity;
 }
 
+/*
+ * Does a candidate's observation agree with the point its previous observation
+ * gave? The comparison allows for that point's pixel noise, one step of motion
+ * noise (dt seconds) and this observation's noise: the same gate as updates.
+ */
+static int track_consistent(const vl_estimator_t *e, const vl_pending_track_t *t, const double y[3], double dt)
+{
+    if (e->cfg.gate_chi2 <= 0.0) {
+        return 1;
+    }
+    double y_pred[3], Hp[18], Hx[9];
+    if (project_world_point(e, t->point, y_pred, Hp, Hx) != 0) {
+        return 0;
+    }
+    const double sv2 = e->cfg.linear_velocity_noise * e->cfg.linear_velocity_noise * dt * dt;
+    const double sw2 = e->cfg.angular_velocity_noise * e->cfg.angular_velocity_noise * dt * dt;
+    const double s2 = e->cfg.pixel_noise * e->cfg.pixel_noise;
+    double S[9], tmp[9], HQ[18];
+    vl_matmul(Hx, t->covariance, tmp, 3, 3, 3);
+    vl_matmul_bt(tmp, Hx, S, 3, 3, 3);
+    for (int r = 0; r < 3; ++r) {
+        for (int j = 0; j < 6; ++j) {
+            HQ[6 * r + j] = Hp[6 * r + j] * (j < 3 ? sv2 : sw2);
+        }
+    }
+    double HQH[9];
+    vl_matmul_bt(HQ, Hp, HQH, 3, 6, 3);
+    for (int i = 0; i < 9; ++i) {
+        S[i] += HQH[i];
+    }
+    S[0] += s2;
+    S[4] += 0.5 * s2;
+    S[8] += s2;
+    const double r[3] = {y[0] - y_pred[0], y[1] - y_pred[1], y[2] - y_pred[2]};
+    return mahalanobis3(S, r) <= e->cfg.gate_chi2;
+}
+
 /* Candidate for admission, ordered by score. */
 typedef struct {
     uint32_t obs;
@@ -490,6 +587,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     }
 
     propagate_to(e, frame->utime);
+    const double frame_dt = (e->counters.frames_accepted > 0) ? (double)(frame->utime - e->last_frame_utime) * 1e-6 : 0.0;
     e->last_frame_utime = frame->utime;
     e->frame_index++;
     e->counters.frames_accepted++;
@@ -548,34 +646,9 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
                 memset(row->H_pose, 0, sizeof(row->H_pose));
             }
             if (e->cfg.gate_chi2 > 0.0) {
-                double S[9], Sinv_r[3];
+                double S[9];
                 vl_la_obs_covariance(e->P, LD, row, S);
-                /* 3x3 SPD solve by Cholesky; a failure here is as good as an outlier. */
-                double l00 = S[0];
-                if (!(l00 > 0.0)) {
-                    e->counters.observations_gated++;
-                    continue;
-                }
-                l00 = sqrt(l00);
-                const double l10 = S[3] / l00, l20 = S[6] / l00;
-                const double d11 = S[4] - l10 * l10;
-                if (!(d11 > 0.0)) {
-                    e->counters.observations_gated++;
-                    continue;
-                }
-                const double l11 = sqrt(d11);
-                const double l21 = (S[7] - l20 * l10) / l11;
-                const double d22 = S[8] - l20 * l20 - l21 * l21;
-                if (!(d22 > 0.0)) {
-                    e->counters.observations_gated++;
-                    continue;
-                }
-                const double l22 = sqrt(d22);
-                Sinv_r[0] = row->residual[0] / l00;
-                Sinv_r[1] = (row->residual[1] - l10 * Sinv_r[0]) / l11;
-                Sinv_r[2] = (row->residual[2] - l20 * Sinv_r[0] - l21 * Sinv_r[1]) / l22;
-                const double d2 = Sinv_r[0] * Sinv_r[0] + Sinv_r[1] * Sinv_r[1] + Sinv_r[2] * Sinv_r[2];
-                if (d2 > e->cfg.gate_chi2) {
+                if (!(mahalanobis3(S, row->residual) <= e->cfg.gate_chi2)) {
                     e->counters.observations_gated++;
                     continue;
                 }
@@ -591,10 +664,28 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
             }
             if (!(disparity >= e->cfg.min_disparity) || depth_of(cal, disparity) > e->cfg.max_depth) {
                 e->counters.observations_low_disparity++;
+                if (t != NULL) {
+                    t->frames_seen = 0; /* no usable point to compare the next observation with */
+                }
+                continue;
+            }
+            if (t == NULL) {
+                continue; /* pending table full: the track is retried next frame */
+            }
+            double y[3], pw[3], C[9];
+            vl_stereo_compress(o, y);
+            if (t->frames_seen >= 2 && !track_consistent(e, t, y, frame_dt)) {
+                e->counters.tracks_inconsistent++;
+                t->frames_seen = 1;
+            }
+            triangulate_world(e, y, pw, C);
+            memcpy(t->point, pw, sizeof(pw));
+            memcpy(t->covariance, C, sizeof(C));
+            if (t->frames_seen < e->cfg.min_track_length) {
                 continue;
             }
             /* Larger disparity (nearer, better conditioned) and longer tracks go first. */
-            const uint32_t age = (t != NULL) ? t->frames_seen - 1u : 0u;
+            const uint32_t age = t->frames_seen - 1u;
             candidates[num_candidates].obs = i;
             candidates[num_candidates].score = disparity * (1.0 + 0.5 * (double)(age < 4u ? age : 4u));
             num_candidates++;

@@ -25,6 +25,9 @@ struct no_heap_scope {
 #ifdef EIGEN_RUNTIME_NO_MALLOC
     no_heap_scope() { Eigen::internal::set_is_malloc_allowed(false); }
     ~no_heap_scope() { Eigen::internal::set_is_malloc_allowed(true); }
+#else
+    no_heap_scope() {}
+    ~no_heap_scope() {}
 #endif
 };
 

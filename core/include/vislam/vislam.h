@@ -125,6 +125,9 @@ typedef struct {
 
     uint32_t max_landmarks;         /**< active window, 1..VL_MAX_LANDMARKS */
     uint32_t max_unseen_frames;     /**< frames a landmark may go unobserved before it is marginalized */
+    uint32_t min_track_length;      /**< frames a track must span before admission (>= 1); from the
+                                         second frame on, admission also needs the new observation to
+                                         agree with the previous one (gate_chi2) */
     double max_propagation_dt;      /**< s, longer gaps are counted (time_gaps) and still propagated */
 
     vl_calibration_t calibration;   /**< stereo rig */
@@ -185,6 +188,7 @@ typedef struct {
     uint64_t observations_gated;        /**< refused by the Mahalanobis gate */
     uint64_t landmarks_initialized;     /**< admitted to the window */
     uint64_t landmarks_deferred;        /**< admissions postponed because the window was full */
+    uint64_t tracks_inconsistent;       /**< candidate observations that disagreed with their track's previous one */
     uint64_t landmarks_marginalized;    /**< left the window and handed to the sink */
     uint64_t landmarks_evicted;         /**< of those, removed early to make room */
     uint64_t numerical_failures;        /**< updates refused with VL_ERR_NOT_POSITIVE_DEFINITE */
@@ -208,6 +212,8 @@ typedef struct {
     int32_t id;
     uint32_t frames_seen;
     uint64_t last_frame;
+    double point[3];        /**< world point triangulated at its last observation, m */
+    double covariance[9];   /**< its covariance from pixel noise alone, m^2 */
 } vl_pending_track_t;
 
 /** One observation's rows of the joint update (internal workspace). */

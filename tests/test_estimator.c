@@ -1,0 +1,592 @@
+/* Unit tests of the estimator API and of the shim's update and marginalization. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "unity.h"
+#include "vislam/vislam.h"
+#include "vl_linalg.h"
+#include "vl_se3.h"
+#include "vl_stereo.h"
+
+static vl_estimator_t est;
+
+static const double kitti_cam_T_imu[16] = {
+    -1.08863514e-03, -9.99976347e-01, 6.78718180e-03,  1.14389871e+00,  -8.51207214e-03, -6.77767115e-03,
+    -9.99940872e-01, -3.12718471e-01, 9.99963177e-01,  -1.14634293e-03, -8.50449310e-03, 7.26546045e-01,
+    0.0,             0.0,             0.0,             1.0};
+
+static void kitti_config(vl_config_t *cfg)
+{
+    vl_config_default(cfg);
+    cfg->calibration.fx = 707.0912;
+    cfg->calibration.fy = 707.0912;
+    cfg->calibration.cx = 601.8873;
+    cfg->calibration.cy = 183.1104;
+    cfg->calibration.baseline = 0.5371506;
+    memcpy(cfg->calibration.cam_T_imu, kitti_cam_T_imu, sizeof(kitti_cam_T_imu));
+}
+
+/* Pixels of a world point seen from the identity pose. */
+static void observe(const vl_config_t *cfg, const double pw[3], int32_t id, vl_stereo_obs_t *o)
+{
+    const double *T = cfg->calibration.cam_T_imu;
+    double c[3];
+    for (int i = 0; i < 3; ++i) {
+        c[i] = T[4 * i] * pw[0] + T[4 * i + 1] * pw[1] + T[4 * i + 2] * pw[2] + T[4 * i + 3];
+    }
+    double y[3];
+    vl_stereo_project(&cfg->calibration, c, y, NULL);
+    o->id = id;
+    o->u_left = y[0];
+    o->v_left = y[1];
+    o->u_right = y[2];
+    o->v_right = y[1];
+}
+
+/* A frame seeing n landmarks ahead of the vehicle (IMU x forward). */
+static void make_frame(const vl_config_t *cfg, vl_stereo_frame_t *f, int64_t utime, uint32_t n, int32_t first_id)
+{
+    f->utime = utime;
+    f->count = n;
+    for (uint32_t i = 0; i < n; ++i) {
+        const double pw[3] = {8.0 + 1.5 * (double)i, -4.0 + 0.7 * (double)(i % 11), -1.0 + 0.3 * (double)(i % 7)};
+        observe(cfg, pw, first_id + (int32_t)i, &f->obs[i]);
+    }
+}
+
+static vl_imu_sample_t imu_at(int64_t utime, double vx, double wz)
+{
+    vl_imu_sample_t s;
+    memset(&s, 0, sizeof(s));
+    s.utime = utime;
+    s.linear_velocity[0] = vx;
+    s.angular_velocity[2] = wz;
+    return s;
+}
+
+void setUp(void)
+{
+}
+
+void tearDown(void)
+{
+}
+
+/* ------------------------------------------------------------ configuration and misuse */
+
+void test_init_rejects_null_and_missing_calibration(void)
+{
+    vl_config_t cfg;
+    vl_config_default(&cfg); /* no calibration yet */
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_init(NULL, &cfg));
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_init(&est, NULL));
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_init(&est, &cfg));
+    kitti_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+}
+
+void test_config_check_rejects_out_of_range_values(void)
+{
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_config_check(&cfg));
+    cfg.max_landmarks = VL_MAX_LANDMARKS + 1u;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
+    kitti_config(&cfg);
+    cfg.max_landmarks = 0;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
+    kitti_config(&cfg);
+    cfg.pixel_noise = NAN;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
+    kitti_config(&cfg);
+    cfg.linear_velocity_noise = -1.0;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
+    kitti_config(&cfg);
+    cfg.calibration.cam_T_imu[0] = 2.0; /* not a rotation */
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
+    kitti_config(&cfg);
+    cfg.mode = (vl_mode_t)7;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
+}
+
+void test_propagate_rejects_nan_and_counts_it(void)
+{
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(1000000, 1.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    s = imu_at(1100000, NAN, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NON_FINITE, vl_propagate(&est, &s));
+    s = imu_at(1100000, 1.0, INFINITY);
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NON_FINITE, vl_propagate(&est, &s));
+    TEST_ASSERT_EQUAL_UINT64(2, vl_get_counters(&est)->imu_rejected);
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->imu_accepted);
+    vl_pose_t pose;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+    TEST_ASSERT_TRUE(isfinite(pose.position[0]));
+}
+
+void test_propagate_rejects_non_increasing_time(void)
+{
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(2000000, 1.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_ORDER, vl_propagate(&est, &s));
+    s.utime = 1999999;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_ORDER, vl_propagate(&est, &s));
+    TEST_ASSERT_EQUAL_UINT64(2, vl_get_counters(&est)->imu_rejected);
+}
+
+void test_update_before_first_imu_is_not_ready(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    make_frame(&cfg, &frame, 1000000, 10, 0);
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NOT_READY, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->frames_rejected);
+}
+
+void test_update_rejects_frame_out_of_time_order(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(1000000, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(&cfg, &frame, 1000000, 10, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_ORDER, vl_update(&est, &frame));
+    frame.utime = 900000;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_ORDER, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT64(2, vl_get_counters(&est)->frames_rejected);
+}
+
+void test_update_truncates_oversized_frame_and_counts_it(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(1000000, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(&cfg, &frame, 1000000, VL_MAX_FRAME_FEATURES, 0);
+    frame.count = VL_MAX_FRAME_FEATURES + 17u;
+    TEST_ASSERT_EQUAL_INT(VL_FRAME_TRUNCATED, vl_update(&est, &frame));
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(1, c->frames_truncated);
+    TEST_ASSERT_EQUAL_UINT64(17, c->observations_truncated);
+    TEST_ASSERT_LESS_OR_EQUAL_UINT32(cfg.max_landmarks, vl_window_size(&est));
+}
+
+void test_update_counts_invalid_observations(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(1000000, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(&cfg, &frame, 1000000, 6, 0);
+    frame.obs[0].u_left = NAN;            /* non-finite */
+    frame.obs[1].id = -3;                 /* negative id */
+    frame.obs[2].u_right = frame.obs[2].u_left + 2.0; /* negative disparity */
+    frame.obs[3].id = frame.obs[4].id;    /* duplicate id */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(3, c->observations_invalid);
+    TEST_ASSERT_EQUAL_UINT64(1, c->observations_low_disparity);
+    TEST_ASSERT_EQUAL_UINT32(2, vl_window_size(&est));
+}
+
+/* ------------------------------------------------------------ prediction */
+
+void test_propagate_follows_exponential_map(void)
+{
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.estimate_input_offsets = 0;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    const double u[6] = {5.0, 0.2, -0.1, 0.01, -0.02, 0.3};
+    vl_imu_sample_t s;
+    s.utime = 0;
+    memcpy(s.linear_velocity, u, sizeof(s.linear_velocity));
+    memcpy(s.angular_velocity, u + 3, sizeof(s.angular_velocity));
+    for (int k = 0; k <= 20; ++k) {
+        s.utime = (int64_t)k * 100000;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    }
+    /* constant velocity for 2 s is one exponential */
+    double xi[6], R[9], p[3];
+    for (int i = 0; i < 6; ++i) {
+        xi[i] = 2.0 * u[i];
+    }
+    vl_se3_exp(xi, R, p);
+    vl_pose_t pose;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+    for (int i = 0; i < 3; ++i) {
+        TEST_ASSERT_DOUBLE_WITHIN(1e-9, p[i], pose.position[i]);
+    }
+    for (int i = 0; i < 9; ++i) {
+        TEST_ASSERT_DOUBLE_WITHIN(1e-12, R[i], pose.rotation[i]);
+    }
+    /* covariance grows and stays symmetric */
+    TEST_ASSERT_TRUE(pose.covariance[0] > 0.0);
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < 6; ++j) {
+            TEST_ASSERT_EQUAL_DOUBLE(pose.covariance[6 * i + j], pose.covariance[6 * j + i]);
+        }
+    }
+}
+
+/* ------------------------------------------------------------ shim: update and marginalization */
+
+#define N_TEST (VL_CORE_DIM + 3 * 3)
+
+static double rand_unit(unsigned *state)
+{
+    *state = *state * 1103515245u + 12345u;
+    return ((double)((*state >> 8) & 0xFFFFu) / 65535.0) - 0.5;
+}
+
+/* Random SPD matrix into column-major storage with leading dimension ld. */
+static void random_spd(double *P, int ld, int n, unsigned seed)
+{
+    static double A[N_TEST * N_TEST];
+    unsigned s = seed;
+    for (int i = 0; i < n * n; ++i) {
+        A[i] = rand_unit(&s);
+    }
+    for (int i = 0; i < n; ++i) {
+        for (int j = 0; j < n; ++j) {
+            double acc = (i == j) ? 0.5 : 0.0;
+            for (int k = 0; k < n; ++k) {
+                acc += A[i * n + k] * A[j * n + k];
+            }
+            P[(size_t)j * ld + i] = acc;
+        }
+    }
+}
+
+/* In-place Gauss-Jordan inverse of a small dense row-major matrix. */
+static void invert(double *M, int n)
+{
+    static double aug[12 * 24];
+    for (int i = 0; i < n; ++i) {
+        for (int j = 0; j < 2 * n; ++j) {
+            aug[i * 2 * n + j] = (j < n) ? M[i * n + j] : (j - n == i ? 1.0 : 0.0);
+        }
+    }
+    for (int c = 0; c < n; ++c) {
+        int piv = c;
+        for (int r = c + 1; r < n; ++r) {
+            if (fabs(aug[r * 2 * n + c]) > fabs(aug[piv * 2 * n + c])) {
+                piv = r;
+            }
+        }
+        for (int j = 0; j < 2 * n; ++j) {
+            double t = aug[c * 2 * n + j];
+            aug[c * 2 * n + j] = aug[piv * 2 * n + j];
+            aug[piv * 2 * n + j] = t;
+        }
+        const double d = aug[c * 2 * n + c];
+        for (int j = 0; j < 2 * n; ++j) {
+            aug[c * 2 * n + j] /= d;
+        }
+        for (int r = 0; r < n; ++r) {
+            if (r != c) {
+                const double f = aug[r * 2 * n + c];
+                for (int j = 0; j < 2 * n; ++j) {
+                    aug[r * 2 * n + j] -= f * aug[c * 2 * n + j];
+                }
+            }
+        }
+    }
+    for (int i = 0; i < n; ++i) {
+        for (int j = 0; j < n; ++j) {
+            M[i * n + j] = aug[i * 2 * n + n + j];
+        }
+    }
+}
+
+void test_la_update_equals_dense_kalman_formula(void)
+{
+    enum { n = N_TEST, k = 3, m = 3 * k };
+    static double P[n * n], P0[n * n], PHt[n * m], S[m * m], dx[n];
+    random_spd(P, n, n, 7u);
+    memcpy(P0, P, sizeof(P));
+    vl_la_obs_t obs[k];
+    unsigned s = 99u;
+    for (int i = 0; i < k; ++i) {
+        for (int j = 0; j < 18; ++j) {
+            obs[i].H_pose[j] = 10.0 * rand_unit(&s);
+        }
+        for (int j = 0; j < 9; ++j) {
+            obs[i].H_landmark[j] = 10.0 * rand_unit(&s);
+        }
+        for (int j = 0; j < 3; ++j) {
+            obs[i].residual[j] = 3.0 * rand_unit(&s);
+            obs[i].noise_var[j] = 1.0 + (double)j;
+        }
+        obs[i].landmark_col = VL_CORE_DIM + 3 * ((i + 1) % 3);
+    }
+    /* Dense reference: H (m x n), K = P H^T S^-1, P+ = P - K H P, dx = K r. */
+    static double H[m * n], PHt_ref[n * m], Sref[m * m], K[n * m], Pref[n * n], dxref[n];
+    memset(H, 0, sizeof(H));
+    for (int i = 0; i < k; ++i) {
+        for (int r = 0; r < 3; ++r) {
+            for (int j = 0; j < 6; ++j) {
+                H[(3 * i + r) * n + j] = obs[i].H_pose[6 * r + j];
+            }
+            for (int j = 0; j < 3; ++j) {
+                H[(3 * i + r) * n + obs[i].landmark_col + j] = obs[i].H_landmark[3 * r + j];
+            }
+        }
+    }
+    for (int a = 0; a < n; ++a) {
+        for (int b = 0; b < m; ++b) {
+            double acc = 0.0;
+            for (int c = 0; c < n; ++c) {
+                acc += P0[c * n + a] * H[b * n + c];
+            }
+            PHt_ref[a * m + b] = acc;
+        }
+    }
+    for (int a = 0; a < m; ++a) {
+        for (int b = 0; b < m; ++b) {
+            double acc = (a == b) ? obs[a / 3].noise_var[a % 3] : 0.0;
+            for (int c = 0; c < n; ++c) {
+                acc += H[a * n + c] * PHt_ref[c * m + b];
+            }
+            Sref[a * m + b] = acc;
+        }
+    }
+    invert(Sref, m);
+    for (int a = 0; a < n; ++a) {
+        for (int b = 0; b < m; ++b) {
+            double acc = 0.0;
+            for (int c = 0; c < m; ++c) {
+                acc += PHt_ref[a * m + c] * Sref[c * m + b];
+            }
+            K[a * m + b] = acc;
+        }
+    }
+    for (int a = 0; a < n; ++a) {
+        double acc = 0.0;
+        for (int b = 0; b < m; ++b) {
+            acc += K[a * m + b] * obs[b / 3].residual[b % 3];
+        }
+        dxref[a] = acc;
+        for (int b = 0; b < n; ++b) {
+            double kh = 0.0;
+            for (int c = 0; c < m; ++c) {
+                kh += K[a * m + c] * PHt_ref[b * m + c];
+            }
+            Pref[b * n + a] = P0[b * n + a] - kh;
+        }
+    }
+
+    vl_la_workspace_t ws = {PHt, S, dx};
+    TEST_ASSERT_EQUAL_INT(0, vl_la_update(P, n, n, obs, k, &ws));
+    for (int a = 0; a < n; ++a) {
+        TEST_ASSERT_DOUBLE_WITHIN(1e-9, dxref[a], dx[a]);
+        for (int b = 0; b < n; ++b) {
+            TEST_ASSERT_DOUBLE_WITHIN(1e-9, Pref[b * n + a], P[b * n + a]);
+            TEST_ASSERT_EQUAL_DOUBLE(P[b * n + a], P[a * n + b]); /* exactly symmetric */
+        }
+    }
+}
+
+void test_la_update_refuses_indefinite_innovation_covariance(void)
+{
+    enum { n = N_TEST };
+    static double P[n * n], P0[n * n], PHt[n * 3], S[9], dx[n];
+    random_spd(P, n, n, 3u);
+    memcpy(P0, P, sizeof(P));
+    vl_la_obs_t obs;
+    memset(&obs, 0, sizeof(obs));
+    obs.H_landmark[0] = obs.H_landmark[4] = obs.H_landmark[8] = 1.0;
+    obs.noise_var[0] = obs.noise_var[1] = obs.noise_var[2] = -1e6;
+    obs.landmark_col = VL_CORE_DIM;
+    vl_la_workspace_t ws = {PHt, S, dx};
+    TEST_ASSERT_EQUAL_INT(-1, vl_la_update(P, n, n, &obs, 1, &ws));
+    TEST_ASSERT_EQUAL_MEMORY(P0, P, sizeof(P));
+}
+
+void test_la_move_block_leaves_the_exact_marginal(void)
+{
+    enum { n = N_TEST };
+    static double P[n * n], P0[n * n];
+    random_spd(P, n, n, 11u);
+    memcpy(P0, P, sizeof(P));
+    /* Drop landmark 0 (state 12..14): landmark 2 (18..20) moves into its place. */
+    vl_la_move_block(P, n, n, VL_CORE_DIM, VL_CORE_DIM + 6);
+    const int map[N_TEST - 3] = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 18, 19, 20, 15, 16, 17};
+    for (int a = 0; a < n - 3; ++a) {
+        for (int b = 0; b < n - 3; ++b) {
+            TEST_ASSERT_EQUAL_DOUBLE(P0[map[b] * n + map[a]], P[b * n + a]);
+        }
+    }
+}
+
+/* ------------------------------------------------------------ window and map */
+
+typedef struct {
+    vl_landmark_t got[VL_MAX_LANDMARKS];
+    size_t count;
+} sink_t;
+
+static void collect(void *user, const vl_landmark_t *lm)
+{
+    sink_t *s = (sink_t *)user;
+    if (s->count < VL_MAX_LANDMARKS) {
+        s->got[s->count] = *lm;
+    }
+    s->count++;
+}
+
+void test_flush_hands_every_landmark_to_the_sink_with_its_marginal(void)
+{
+    static vl_stereo_frame_t frame;
+    static sink_t sink;
+    static vl_landmark_t before[VL_MAX_LANDMARKS];
+    memset(&sink, 0, sizeof(sink));
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.landmark_sink = collect;
+    cfg.landmark_sink_user = &sink;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(1000000, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(&cfg, &frame, 1000000, 12, 100);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    size_t count = 0;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_landmarks(&est, before, VL_MAX_LANDMARKS, &count));
+    TEST_ASSERT_EQUAL_UINT64((uint64_t)(12), (uint64_t)(count));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_flush_landmarks(&est));
+    TEST_ASSERT_EQUAL_UINT64((uint64_t)(12), (uint64_t)(sink.count));
+    TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
+    TEST_ASSERT_EQUAL_UINT32(VL_CORE_DIM, vl_state_dim(&est));
+    for (size_t i = 0; i < count; ++i) {
+        int found = 0;
+        for (size_t j = 0; j < sink.count; ++j) {
+            if (sink.got[j].id == before[i].id) {
+                found = 1;
+                TEST_ASSERT_EQUAL_MEMORY(before[i].position, sink.got[j].position, sizeof(before[i].position));
+                TEST_ASSERT_EQUAL_MEMORY(before[i].covariance, sink.got[j].covariance, sizeof(before[i].covariance));
+            }
+        }
+        TEST_ASSERT_TRUE(found);
+    }
+    /* a landmark seen from the identity pose lands where it was placed */
+    TEST_ASSERT_DOUBLE_WITHIN(1e-6, 8.0, before[0].position[0] + 0.0 * before[0].id);
+}
+
+void test_window_never_exceeds_its_limit_and_keeps_observed_landmarks(void)
+{
+    static vl_stereo_frame_t frame;
+    static sink_t sink;
+    memset(&sink, 0, sizeof(sink));
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.max_landmarks = 5;
+    cfg.landmark_sink = collect;
+    cfg.landmark_sink_user = &sink;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(0, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    for (int k = 0; k < 5; ++k) {
+        s.utime = (int64_t)k * 100000;
+        if (k > 0) {
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        }
+        make_frame(&cfg, &frame, s.utime, 9, 0); /* the same 9 tracks every frame */
+        TEST_ASSERT_TRUE(vl_update(&est, &frame) >= 0);
+        TEST_ASSERT_LESS_OR_EQUAL_UINT32(5, vl_window_size(&est));
+    }
+    /* All five admitted landmarks are observed every frame: none may be evicted. */
+    TEST_ASSERT_EQUAL_UINT32(5, vl_window_size(&est));
+    TEST_ASSERT_EQUAL_UINT64(0, vl_get_counters(&est)->landmarks_evicted);
+    TEST_ASSERT_EQUAL_UINT64((uint64_t)(0), (uint64_t)(sink.count));
+    TEST_ASSERT_TRUE(vl_get_counters(&est)->landmarks_deferred > 0);
+    /* Tracks end: the window empties into the map, nothing is lost. */
+    s.utime = 600000;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(&cfg, &frame, s.utime, 0, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
+    TEST_ASSERT_EQUAL_UINT64((uint64_t)(5), (uint64_t)(sink.count));
+    TEST_ASSERT_EQUAL_UINT64(vl_get_counters(&est)->landmarks_initialized, vl_get_counters(&est)->landmarks_marginalized);
+}
+
+void test_window_admits_the_largest_disparity_first(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.max_landmarks = 1;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(0, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    frame.utime = 0;
+    frame.count = 3;
+    const double far[3] = {40.0, 1.0, 0.0}, near[3] = {6.0, 1.0, 0.0}, mid[3] = {15.0, 1.0, 0.0};
+    observe(&cfg, far, 1, &frame.obs[0]);
+    observe(&cfg, near, 2, &frame.obs[1]);
+    observe(&cfg, mid, 3, &frame.obs[2]);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    vl_landmark_t lm;
+    size_t count = 0;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_landmarks(&est, &lm, 1, &count));
+    TEST_ASSERT_EQUAL_INT32(2, lm.id);
+}
+
+void test_get_landmarks_reports_capacity_shortfall(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(0, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(&cfg, &frame, 0, 4, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    vl_landmark_t out[2];
+    size_t count = 0;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CAPACITY, vl_get_landmarks(&est, out, 2, &count));
+    TEST_ASSERT_EQUAL_UINT64((uint64_t)(4), (uint64_t)(count));
+}
+
+int main(void)
+{
+    UNITY_BEGIN();
+    RUN_TEST(test_init_rejects_null_and_missing_calibration);
+    RUN_TEST(test_config_check_rejects_out_of_range_values);
+    RUN_TEST(test_propagate_rejects_nan_and_counts_it);
+    RUN_TEST(test_propagate_rejects_non_increasing_time);
+    RUN_TEST(test_update_before_first_imu_is_not_ready);
+    RUN_TEST(test_update_rejects_frame_out_of_time_order);
+    RUN_TEST(test_update_truncates_oversized_frame_and_counts_it);
+    RUN_TEST(test_update_counts_invalid_observations);
+    RUN_TEST(test_propagate_follows_exponential_map);
+    RUN_TEST(test_la_update_equals_dense_kalman_formula);
+    RUN_TEST(test_la_update_refuses_indefinite_innovation_covariance);
+    RUN_TEST(test_la_move_block_leaves_the_exact_marginal);
+    RUN_TEST(test_flush_hands_every_landmark_to_the_sink_with_its_marginal);
+    RUN_TEST(test_window_never_exceeds_its_limit_and_keeps_observed_landmarks);
+    RUN_TEST(test_window_admits_the_largest_disparity_first);
+    RUN_TEST(test_get_landmarks_reports_capacity_shortfall);
+    return UNITY_END();
+}

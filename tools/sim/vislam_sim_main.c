@@ -1,0 +1,356 @@
+/**
+ * @file vislam_sim_main.c
+ * @brief vislam-sim: writes a synthetic scenario as an LCM event log plus its truth.
+ *
+ * The log has the layout of a converted dataset: VISLAM_CALIB first, then per
+ * step VISLAM_IMU and VISLAM_FEATURES, each event stamped with its message's
+ * utime. The truth is a TUM trajectory of the IMU frame in the world.
+ */
+#include <errno.h>
+#include <lcm/eventlog.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "vislam_calibration_t.h"
+#include "vislam_imu_t.h"
+#include "vislam_stereo_frame_t.h"
+#include "vl_sim.h"
+
+/* Static: the simulator and a frame are too large to be polite on the stack. */
+static vl_sim_t g_sim;
+static vl_stereo_frame_t g_frame;
+static vislam_stereo_frame_t g_msg_frame;
+static unsigned char g_buf[16384];
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+            "usage: vislam-sim --out LOG.lcmlog --truth TRUTH.tum [options]\n"
+            "Writes a deterministic synthetic visual-inertial scenario as an LCM log\n"
+            "(VISLAM_CALIB, then VISLAM_IMU + VISLAM_FEATURES per step) and its true\n"
+            "IMU trajectory in TUM format (time tx ty tz qx qy qz qw).\n"
+            "options (defaults in brackets):\n"
+            "  --truth-map MAP.ply     also write the true position of every track id\n"
+            "  --steps N               steps at 10 Hz [300]\n"
+            "  --seed S                world seed: path, points, tracks [1]\n"
+            "  --noise-seed S          measurement noise seed [0]\n"
+            "  --pixel-noise PX        pixel std on each coordinate [1.0]\n"
+            "  --linear-noise MPS      linear velocity std [0.5]\n"
+            "  --angular-noise RPS     angular velocity std [0.05]\n"
+            "  --linear-offset X,Y,Z   constant linear velocity offset, m/s [0,0,0]\n"
+            "  --angular-offset X,Y,Z  constant angular velocity offset, rad/s [0.005,0.005,0.005]\n"
+            "  --speed MPS             mean forward speed [8]\n"
+            "  --points-per-meter N    world point density along the path [2]\n"
+            "  --max-observations N    observations per frame, 1..256 [256]\n"
+            "  --start-utime US        time of step 0, microseconds [1317384000000000]\n"
+            "  --quiet                 no summary on stderr\n");
+}
+
+static int parse_double(const char *s, double *out)
+{
+    char *end = NULL;
+    double v;
+    errno = 0;
+    v = strtod(s, &end);
+    if (errno != 0 || end == s || *end != '\0' || !isfinite(v)) {
+        return -1;
+    }
+    *out = v;
+    return 0;
+}
+
+static int parse_u64(const char *s, unsigned long long *out)
+{
+    char *end = NULL;
+    unsigned long long v;
+    if (*s == '-') {
+        return -1;
+    }
+    errno = 0;
+    v = strtoull(s, &end, 0);
+    if (errno != 0 || end == s || *end != '\0') {
+        return -1;
+    }
+    *out = v;
+    return 0;
+}
+
+/** "x,y,z" or a single value for all three axes. */
+static int parse_vec3(const char *s, double v[3])
+{
+    char tmp[256];
+    char *a, *b;
+    if (strlen(s) >= sizeof(tmp)) {
+        return -1;
+    }
+    strcpy(tmp, s);
+    a = strchr(tmp, ',');
+    if (a == NULL) {
+        if (parse_double(tmp, &v[0]) != 0) {
+            return -1;
+        }
+        v[1] = v[2] = v[0];
+        return 0;
+    }
+    *a++ = '\0';
+    b = strchr(a, ',');
+    if (b == NULL) {
+        return -1;
+    }
+    *b++ = '\0';
+    return (parse_double(tmp, &v[0]) == 0 && parse_double(a, &v[1]) == 0 &&
+            parse_double(b, &v[2]) == 0) ? 0 : -1;
+}
+
+static int write_event(lcm_eventlog_t *log, const char *channel, int64_t utime, int len)
+{
+    lcm_eventlog_event_t ev;
+    memset(&ev, 0, sizeof(ev));
+    ev.timestamp = utime;
+    ev.channellen = (int32_t)strlen(channel);
+    ev.channel = (char *)channel;
+    ev.datalen = len;
+    ev.data = g_buf;
+    return lcm_eventlog_write_event(log, &ev);
+}
+
+/** Unit quaternion (x, y, z, w) of a rotation matrix, w >= 0. */
+static void rot_to_quat(const double R[9], double q[4])
+{
+    const double tr = R[0] + R[4] + R[8];
+    double x, y, z, w, n;
+    if (tr > 0.0) {
+        const double s = 2.0 * sqrt(tr + 1.0);
+        w = 0.25 * s;
+        x = (R[7] - R[5]) / s;
+        y = (R[2] - R[6]) / s;
+        z = (R[3] - R[1]) / s;
+    } else if (R[0] > R[4] && R[0] > R[8]) {
+        const double s = 2.0 * sqrt(1.0 + R[0] - R[4] - R[8]);
+        w = (R[7] - R[5]) / s;
+        x = 0.25 * s;
+        y = (R[1] + R[3]) / s;
+        z = (R[2] + R[6]) / s;
+    } else if (R[4] > R[8]) {
+        const double s = 2.0 * sqrt(1.0 + R[4] - R[0] - R[8]);
+        w = (R[2] - R[6]) / s;
+        x = (R[1] + R[3]) / s;
+        y = 0.25 * s;
+        z = (R[5] + R[7]) / s;
+    } else {
+        const double s = 2.0 * sqrt(1.0 + R[8] - R[0] - R[4]);
+        w = (R[3] - R[1]) / s;
+        x = (R[2] + R[6]) / s;
+        y = (R[5] + R[7]) / s;
+        z = 0.25 * s;
+    }
+    n = sqrt(x * x + y * y + z * z + w * w);
+    if (w < 0.0) {
+        n = -n;
+    }
+    q[0] = x / n;
+    q[1] = y / n;
+    q[2] = z / n;
+    q[3] = w / n;
+}
+
+int main(int argc, char **argv)
+{
+    vl_sim_config_t cfg;
+    const char *out_path = NULL, *truth_path = NULL, *map_path = NULL;
+    int quiet = 0, i, rc = 0;
+    lcm_eventlog_t *log = NULL;
+    FILE *truth = NULL;
+    vislam_calibration_t calib_msg;
+    uint64_t steps = 0, observations = 0;
+    double R[9], p[3];
+
+    vl_sim_config_default(&cfg);
+    for (i = 1; i < argc; ++i) {
+        const char *a = argv[i];
+        const char *v = (i + 1 < argc) ? argv[i + 1] : NULL;
+        unsigned long long u = 0;
+        int bad = 0;
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            usage(stdout);
+            return 0;
+        } else if (strcmp(a, "--quiet") == 0) {
+            quiet = 1;
+            continue;
+        }
+        if (v == NULL) {
+            fprintf(stderr, "vislam-sim: %s needs a value (or is unknown)\n", a);
+            usage(stderr);
+            return 2;
+        }
+        ++i;
+        if (strcmp(a, "--out") == 0) {
+            out_path = v;
+        } else if (strcmp(a, "--truth") == 0) {
+            truth_path = v;
+        } else if (strcmp(a, "--truth-map") == 0) {
+            map_path = v;
+        } else if (strcmp(a, "--steps") == 0) {
+            bad = parse_u64(v, &u) != 0 || u == 0 || u > 100000000ULL;
+            cfg.num_steps = (uint32_t)u;
+        } else if (strcmp(a, "--seed") == 0) {
+            bad = parse_u64(v, &u) != 0;
+            cfg.seed = u;
+        } else if (strcmp(a, "--noise-seed") == 0) {
+            bad = parse_u64(v, &u) != 0;
+            cfg.noise_seed = u;
+        } else if (strcmp(a, "--pixel-noise") == 0) {
+            bad = parse_double(v, &cfg.pixel_noise) != 0;
+        } else if (strcmp(a, "--linear-noise") == 0) {
+            bad = parse_double(v, &cfg.linear_noise) != 0;
+        } else if (strcmp(a, "--angular-noise") == 0) {
+            bad = parse_double(v, &cfg.angular_noise) != 0;
+        } else if (strcmp(a, "--linear-offset") == 0) {
+            bad = parse_vec3(v, cfg.linear_offset) != 0;
+        } else if (strcmp(a, "--angular-offset") == 0) {
+            bad = parse_vec3(v, cfg.angular_offset) != 0;
+        } else if (strcmp(a, "--speed") == 0) {
+            bad = parse_double(v, &cfg.speed) != 0;
+        } else if (strcmp(a, "--points-per-meter") == 0) {
+            bad = parse_double(v, &cfg.points_per_meter) != 0;
+        } else if (strcmp(a, "--max-observations") == 0) {
+            bad = parse_u64(v, &u) != 0 || u > VL_MAX_FRAME_FEATURES;
+            cfg.max_observations = (uint32_t)u;
+        } else if (strcmp(a, "--start-utime") == 0) {
+            bad = parse_u64(v, &u) != 0 || u > (unsigned long long)INT64_MAX / 2;
+            cfg.start_utime = (int64_t)u;
+        } else {
+            fprintf(stderr, "vislam-sim: unknown option %s\n", a);
+            usage(stderr);
+            return 2;
+        }
+        if (bad) {
+            fprintf(stderr, "vislam-sim: bad value for %s: '%s'\n", a, v);
+            return 2;
+        }
+    }
+    if (out_path == NULL || truth_path == NULL) {
+        fprintf(stderr, "vislam-sim: --out and --truth are required\n");
+        usage(stderr);
+        return 2;
+    }
+    if (vl_sim_init(&g_sim, &cfg) != 0) {
+        fprintf(stderr, "vislam-sim: configuration out of range (check noise >= 0, max-observations >= 1)\n");
+        return 2;
+    }
+
+    log = lcm_eventlog_create(out_path, "w");
+    if (log == NULL) {
+        fprintf(stderr, "vislam-sim: cannot create %s: %s\n", out_path, strerror(errno));
+        return 1;
+    }
+    truth = fopen(truth_path, "w");
+    if (truth == NULL) {
+        fprintf(stderr, "vislam-sim: cannot create %s: %s\n", truth_path, strerror(errno));
+        lcm_eventlog_destroy(log);
+        return 1;
+    }
+
+    memset(&calib_msg, 0, sizeof(calib_msg));
+    calib_msg.utime = cfg.start_utime;
+    calib_msg.fx = cfg.calibration.fx;
+    calib_msg.fy = cfg.calibration.fy;
+    calib_msg.cx = cfg.calibration.cx;
+    calib_msg.cy = cfg.calibration.cy;
+    calib_msg.baseline = cfg.calibration.baseline;
+    memcpy(calib_msg.cam_T_imu, cfg.calibration.cam_T_imu, sizeof(calib_msg.cam_T_imu));
+    {
+        const int len = vislam_calibration_t_encode(g_buf, 0, (int)sizeof(g_buf), &calib_msg);
+        if (len < 0 || write_event(log, "VISLAM_CALIB", calib_msg.utime, len) != 0) {
+            fprintf(stderr, "vislam-sim: writing %s failed\n", out_path);
+            rc = 1;
+        }
+    }
+
+    while (rc == 0) {
+        vl_imu_sample_t imu;
+        vislam_imu_t imu_msg;
+        double q[4];
+        uint32_t k;
+        int len;
+        if (vl_sim_step(&g_sim, &imu, &g_frame, R, p) != 0) {
+            break;
+        }
+        imu_msg.utime = imu.utime;
+        memcpy(imu_msg.linear_velocity, imu.linear_velocity, sizeof(imu_msg.linear_velocity));
+        memcpy(imu_msg.angular_velocity, imu.angular_velocity, sizeof(imu_msg.angular_velocity));
+        len = vislam_imu_t_encode(g_buf, 0, (int)sizeof(g_buf), &imu_msg);
+        if (len < 0 || write_event(log, "VISLAM_IMU", imu_msg.utime, len) != 0) {
+            rc = 1;
+            break;
+        }
+
+        /* Unused slots are zeroed so the log bytes depend on the valid entries only. */
+        memset(&g_msg_frame, 0, sizeof(g_msg_frame));
+        g_msg_frame.utime = g_frame.utime;
+        g_msg_frame.num_features = (int32_t)g_frame.count;
+        for (k = 0; k < g_frame.count; ++k) {
+            g_msg_frame.id[k] = g_frame.obs[k].id;
+            g_msg_frame.u_left[k] = g_frame.obs[k].u_left;
+            g_msg_frame.v_left[k] = g_frame.obs[k].v_left;
+            g_msg_frame.u_right[k] = g_frame.obs[k].u_right;
+            g_msg_frame.v_right[k] = g_frame.obs[k].v_right;
+        }
+        len = vislam_stereo_frame_t_encode(g_buf, 0, (int)sizeof(g_buf), &g_msg_frame);
+        if (len < 0 || write_event(log, "VISLAM_FEATURES", g_msg_frame.utime, len) != 0) {
+            rc = 1;
+            break;
+        }
+
+        rot_to_quat(R, q);
+        /* Integer formatting keeps the microsecond time exact (a double at 1e9 s is not). */
+        fprintf(truth, "%lld.%06lld000 %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n",
+                (long long)(imu.utime / 1000000), (long long)(imu.utime % 1000000), p[0], p[1], p[2],
+                q[0], q[1], q[2], q[3]);
+        ++steps;
+        observations += g_frame.count;
+    }
+    if (rc != 0) {
+        fprintf(stderr, "vislam-sim: writing %s failed\n", out_path);
+    }
+    lcm_eventlog_destroy(log);
+    if (fclose(truth) != 0) {
+        fprintf(stderr, "vislam-sim: writing %s failed\n", truth_path);
+        rc = 1;
+    }
+
+    if (rc == 0 && map_path != NULL) {
+        FILE *m = fopen(map_path, "w");
+        const int32_t n = vl_sim_tracks_issued(&g_sim);
+        const int32_t first = n > VL_SIM_MAX_TRACKS ? n - VL_SIM_MAX_TRACKS : 0;
+        int32_t id;
+        if (m == NULL) {
+            fprintf(stderr, "vislam-sim: cannot create %s: %s\n", map_path, strerror(errno));
+            return 1;
+        }
+        fprintf(m, "ply\nformat ascii 1.0\ncomment vislam-sim true landmark per track id\n"
+                   "element vertex %ld\nproperty double x\nproperty double y\nproperty double z\n"
+                   "property int id\nend_header\n",
+                (long)(n - first));
+        for (id = first; id < n; ++id) {
+            double x[3];
+            if (vl_sim_landmark(&g_sim, id, x) == 0) {
+                fprintf(m, "%.6f %.6f %.6f %ld\n", x[0], x[1], x[2], (long)id);
+            }
+        }
+        if (fclose(m) != 0) {
+            fprintf(stderr, "vislam-sim: writing %s failed\n", map_path);
+            rc = 1;
+        }
+    }
+
+    if (rc == 0 && !quiet) {
+        fprintf(stderr,
+                "vislam-sim: %llu steps, %.1f observations/frame, %ld track ids, %.1f m driven\n",
+                (unsigned long long)steps, steps ? (double)observations / (double)steps : 0.0,
+                (long)vl_sim_tracks_issued(&g_sim), vl_sim_distance(&g_sim));
+    }
+    return rc;
+}

@@ -1,0 +1,633 @@
+/**
+ * @file vl_sim.c
+ * @brief Synthetic visual-inertial scenario (see vl_sim.h).
+ *
+ * A planner integrates the true motion ahead of the vehicle and keeps its
+ * poses in a ring. Points are scattered around each planned pose in a disc
+ * (not in bands beside the road: bands leave the view empty straight ahead
+ * of every corner), once the path is planned far enough on both sides to
+ * keep them off the road. The vehicle then replays the planned poses one step
+ * at a time and observes the points.
+ */
+#include "vl_sim.h"
+
+#include <math.h>
+#include <stddef.h>
+#include <string.h>
+
+#define VL_SIM_TWO_PI 6.283185307179586476925286766559
+
+/* ---------- random numbers ---------- */
+
+static uint64_t splitmix64(uint64_t *state)
+{
+    uint64_t z = (*state += 0x9E3779B97F4A7C15ULL);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+    return z ^ (z >> 31);
+}
+
+static void rng_seed(vl_sim_rng_t *r, uint64_t seed, uint64_t stream)
+{
+    /* Mixing the stream tag through splitmix keeps streams of nearby seeds unrelated. */
+    uint64_t st = seed ^ (stream * 0xD1B54A32D192ED03ULL);
+    int i;
+    for (i = 0; i < 4; ++i) {
+        r->s[i] = splitmix64(&st);
+    }
+    r->spare = 0.0;
+    r->has_spare = 0;
+}
+
+static uint64_t rotl(uint64_t x, int k)
+{
+    return (x << k) | (x >> (64 - k));
+}
+
+static uint64_t rng_next(vl_sim_rng_t *r)
+{
+    uint64_t *s = r->s;
+    const uint64_t result = rotl(s[1] * 5, 7) * 9;
+    const uint64_t t = s[1] << 17;
+    s[2] ^= s[0];
+    s[3] ^= s[1];
+    s[1] ^= s[2];
+    s[0] ^= s[3];
+    s[2] ^= t;
+    s[3] = rotl(s[3], 45);
+    return result;
+}
+
+/** Uniform in [0, 1). */
+static double rng_uniform(vl_sim_rng_t *r)
+{
+    return (double)(rng_next(r) >> 11) * 0x1.0p-53;
+}
+
+/** Standard normal (Box-Muller; the second deviate is kept for the next call). */
+static double rng_normal(vl_sim_rng_t *r)
+{
+    double u1, u2, rad;
+    if (r->has_spare) {
+        r->has_spare = 0;
+        return r->spare;
+    }
+    u1 = 1.0 - rng_uniform(r); /* (0, 1]: log stays finite */
+    u2 = rng_uniform(r);
+    rad = sqrt(-2.0 * log(u1));
+    r->spare = rad * sin(VL_SIM_TWO_PI * u2);
+    r->has_spare = 1;
+    return rad * cos(VL_SIM_TWO_PI * u2);
+}
+
+/* ---------- small SE(3) helpers ---------- */
+
+static void mat3_mul(const double A[9], const double B[9], double C[9])
+{
+    int i, j;
+    for (i = 0; i < 3; ++i) {
+        for (j = 0; j < 3; ++j) {
+            C[3 * i + j] = A[3 * i] * B[j] + A[3 * i + 1] * B[3 + j] + A[3 * i + 2] * B[6 + j];
+        }
+    }
+}
+
+void vl_sim_integrate(double R[9], double p[3], const double u[6], double tau)
+{
+    const double rho[3] = {tau * u[0], tau * u[1], tau * u[2]};
+    const double phi[3] = {tau * u[3], tau * u[4], tau * u[5]};
+    const double th2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2];
+    const double th = sqrt(th2);
+    double A, B, C;
+    double K[9], K2[9], dR[9], V[9], Rn[9], Vr[3];
+    int i;
+
+    if (th < 0.1) {
+        /* Series: (th - sin th) / th^3 cancels badly in the closed form at small angles. */
+        const double t4 = th2 * th2, t6 = t4 * th2, t8 = t4 * t4;
+        A = 1.0 - th2 / 6.0 + t4 / 120.0 - t6 / 5040.0 + t8 / 362880.0;
+        B = 0.5 - th2 / 24.0 + t4 / 720.0 - t6 / 40320.0 + t8 / 3628800.0;
+        C = 1.0 / 6.0 - th2 / 120.0 + t4 / 5040.0 - t6 / 362880.0 + t8 / 39916800.0;
+    } else {
+        const double sh = sin(0.5 * th);
+        A = sin(th) / th;
+        B = 2.0 * sh * sh / th2;
+        C = (th - sin(th)) / (th2 * th);
+    }
+
+    K[0] = 0.0;     K[1] = -phi[2]; K[2] = phi[1];
+    K[3] = phi[2];  K[4] = 0.0;     K[5] = -phi[0];
+    K[6] = -phi[1]; K[7] = phi[0];  K[8] = 0.0;
+    mat3_mul(K, K, K2);
+    for (i = 0; i < 9; ++i) {
+        const double eye = (i % 4 == 0) ? 1.0 : 0.0;
+        dR[i] = eye + A * K[i] + B * K2[i];
+        V[i] = eye + B * K[i] + C * K2[i];
+    }
+    for (i = 0; i < 3; ++i) {
+        Vr[i] = V[3 * i] * rho[0] + V[3 * i + 1] * rho[1] + V[3 * i + 2] * rho[2];
+    }
+    for (i = 0; i < 3; ++i) {
+        p[i] += R[3 * i] * Vr[0] + R[3 * i + 1] * Vr[1] + R[3 * i + 2] * Vr[2];
+    }
+    mat3_mul(R, dR, Rn);
+    memcpy(R, Rn, sizeof(Rn));
+}
+
+/* ---------- configuration ---------- */
+
+void vl_sim_config_default(vl_sim_config_t *cfg)
+{
+    /* The real 0027 sequence's cam_T_imu (IMU x fwd, y left, z up -> camera x right, y down, z fwd). */
+    static const double cam_T_imu[16] = {
+        -1.08863514e-03, -9.99976347e-01, 6.78718180e-03, 1.14389871e+00,
+        -8.51207214e-03, -6.77767115e-03, -9.99940872e-01, -3.12718471e-01,
+        9.99963177e-01, -1.14634293e-03, -8.50449310e-03, 7.26546045e-01,
+        0.0, 0.0, 0.0, 1.0};
+    int i;
+    if (cfg == NULL) {
+        return;
+    }
+    memset(cfg, 0, sizeof(*cfg));
+    cfg->seed = 1;
+    cfg->noise_seed = 0;
+    cfg->num_steps = 300;
+    cfg->start_utime = INT64_C(1317384000000000);
+    cfg->dt_min = 0.099;
+    cfg->dt_max = 0.109;
+
+    cfg->speed = 8.0;
+    cfg->speed_wobble = 1.0;
+    cfg->side_wobble = 0.1;
+    cfg->turn_angle = 1.5707963267948966;
+    cfg->left_turn_probability = 0.5;
+    cfg->turn_angle_spread = 0.15;
+    cfg->turn_period = 8.5;
+    cfg->first_turn_time = 5.0;
+    cfg->turn_duration = 3.0;
+    cfg->yaw_wobble = 0.03;
+    cfg->roll_pitch_rate = 0.02;
+
+    cfg->points_per_meter = 2.5;
+    cfg->road_half_width = 3.0;
+    cfg->scatter_radius = 40.0;
+    cfg->scatter_exponent = 1.5;
+    cfg->height_min = -1.0;
+    cfg->height_max = 6.0;
+
+    cfg->calibration.fx = 707.0912;
+    cfg->calibration.fy = 707.0912;
+    cfg->calibration.cx = 601.8873;
+    cfg->calibration.cy = 183.1104;
+    cfg->calibration.baseline = 0.5371506;
+    memcpy(cfg->calibration.cam_T_imu, cam_T_imu, sizeof(cam_T_imu));
+    cfg->image_width = 1241.0;
+    cfg->image_height = 376.0;
+    cfg->border_margin = 8.0;
+    cfg->min_depth = 1.0;
+    cfg->max_depth = 80.0;
+    cfg->max_observations = VL_MAX_FRAME_FEATURES;
+    cfg->detect_probability = 1.0;
+    cfg->track_length_mean = 40.0;
+    cfg->track_length_min = 2;
+
+    cfg->pixel_noise = 1.0;
+    cfg->linear_noise = 0.5;
+    cfg->angular_noise = 0.05;
+    for (i = 0; i < 3; ++i) {
+        cfg->linear_offset[i] = 0.0;
+        cfg->angular_offset[i] = 0.005;
+    }
+}
+
+static int finite_all(const double *x, size_t n)
+{
+    size_t i;
+    for (i = 0; i < n; ++i) {
+        if (!isfinite(x[i])) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+static int config_ok(const vl_sim_config_t *c)
+{
+    const double scalars[] = {
+        c->dt_min, c->dt_max, c->speed, c->speed_wobble, c->side_wobble, c->turn_angle,
+        c->left_turn_probability,
+        c->turn_angle_spread, c->turn_period, c->first_turn_time, c->turn_duration, c->yaw_wobble,
+        c->roll_pitch_rate, c->points_per_meter, c->road_half_width, c->scatter_radius,
+        c->scatter_exponent, c->height_min, c->height_max, c->image_width, c->image_height,
+        c->border_margin, c->min_depth, c->max_depth, c->detect_probability,
+        c->track_length_mean,
+        c->pixel_noise, c->linear_noise, c->angular_noise};
+    if (!finite_all(scalars, sizeof(scalars) / sizeof(scalars[0])) ||
+        !finite_all(c->linear_offset, 3) || !finite_all(c->angular_offset, 3) ||
+        !finite_all(&c->calibration.fx, 5) || !finite_all(c->calibration.cam_T_imu, 16)) {
+        return 0;
+    }
+    return c->dt_min > 0.0 && c->dt_max >= c->dt_min && c->dt_max < 1000.0 &&
+           c->turn_period > 0.0 && c->turn_duration > 0.0 && c->turn_duration <= c->turn_period &&
+           c->turn_angle_spread >= 0.0 && c->left_turn_probability >= 0.0 &&
+           c->left_turn_probability <= 1.0 && c->points_per_meter >= 0.0 && c->road_half_width >= 0.0 &&
+           c->scatter_radius > c->road_half_width && c->scatter_exponent > 0.0 &&
+           c->height_max >= c->height_min && c->max_depth < 1e4 && c->scatter_radius < 1e4 &&
+           c->calibration.fx > 0.0 && c->calibration.fy > 0.0 && c->calibration.baseline > 0.0 &&
+           c->border_margin >= 0.0 && c->image_width > 2.0 * c->border_margin + 1.0 &&
+           c->image_height > 2.0 * c->border_margin + 1.0 && c->min_depth > 0.0 &&
+           c->max_depth > c->min_depth && c->max_observations >= 1 &&
+           c->max_observations <= VL_MAX_FRAME_FEATURES && c->detect_probability >= 0.0 &&
+           c->detect_probability <= 1.0 && c->track_length_min >= 1 &&
+           c->track_length_mean >= (double)c->track_length_min && c->track_length_mean < 1e6 &&
+           c->pixel_noise >= 0.0 && c->linear_noise >= 0.0 && c->angular_noise >= 0.0;
+}
+
+/* ---------- the true motion ---------- */
+
+/** Angle of turn k, a pure function of (seed, k) so the path needs no per-turn storage. */
+static double turn_angle_of(const vl_sim_config_t *c, int64_t k)
+{
+    uint64_t st = c->seed * 0x2545F4914F6CDD1DULL ^ ((uint64_t)k * 0x9E3779B97F4A7C15ULL);
+    const double u1 = 1.0 - (double)(splitmix64(&st) >> 11) * 0x1.0p-53;
+    const double u2 = (double)(splitmix64(&st) >> 11) * 0x1.0p-53;
+    const double u3 = (double)(splitmix64(&st) >> 11) * 0x1.0p-53;
+    const double n = sqrt(-2.0 * log(u1)) * cos(VL_SIM_TWO_PI * u2);
+    const double sign = (u3 < c->left_turn_probability) ? 1.0 : -1.0;
+    return sign * c->turn_angle * (1.0 + c->turn_angle_spread * n);
+}
+
+/** True body velocities [v; w] at s seconds after step 0. */
+static void velocity_profile(const vl_sim_t *sim, double s, double u[6])
+{
+    const vl_sim_config_t *c = &sim->cfg;
+    const double *ph = sim->phase;
+    const double k_real = floor((s - c->first_turn_time) / c->turn_period + 0.5);
+    double yaw = c->yaw_wobble * sin(VL_SIM_TWO_PI * s / 9.7 + ph[5]);
+
+    if (k_real >= 0.0) {
+        /* Raised-cosine bump: integrates to the turn angle over turn_duration. */
+        const double x = s - (c->first_turn_time + k_real * c->turn_period);
+        const double D = c->turn_duration;
+        if (fabs(x) < 0.5 * D) {
+            yaw += turn_angle_of(c, (int64_t)k_real) / D * (1.0 + cos(VL_SIM_TWO_PI * x / D));
+        }
+    }
+    u[0] = c->speed + c->speed_wobble * sin(VL_SIM_TWO_PI * s / 13.0 + ph[0]);
+    u[1] = c->side_wobble * sin(VL_SIM_TWO_PI * s / 5.3 + ph[1]);
+    u[2] = c->side_wobble * sin(VL_SIM_TWO_PI * s / 3.7 + ph[2]);
+    u[3] = c->roll_pitch_rate * sin(VL_SIM_TWO_PI * s / 2.9 + ph[3]);
+    u[4] = c->roll_pitch_rate * sin(VL_SIM_TWO_PI * s / 4.1 + ph[4]);
+    u[5] = yaw;
+}
+
+static const vl_sim_pose_t *ring_at(const vl_sim_t *sim, uint64_t k)
+{
+    return &sim->ring[k % VL_SIM_POSE_RING];
+}
+
+/**
+ * 1 when a new point at x must be dropped: it lies on the road (within
+ * road_half_width of a planned pose near segment k), or in an area an earlier
+ * part of the path already filled (within scatter_radius of a pose more than
+ * two radii back along the path). The second test keeps the world's density
+ * when the path comes back; it reaches as far back as the pose ring does.
+ */
+static int reject_point(const vl_sim_t *sim, uint64_t k, const double x[3])
+{
+    const vl_sim_config_t *c = &sim->cfg;
+    const double reach = c->scatter_radius + c->road_half_width;
+    const double w2 = c->road_half_width * c->road_half_width;
+    const double r2 = c->scatter_radius * c->scatter_radius;
+    const double s = ring_at(sim, k)->s;
+    const uint64_t oldest = sim->planned > VL_SIM_POSE_RING ? sim->planned - VL_SIM_POSE_RING : 0;
+    uint64_t j;
+    for (j = k + 1; j-- > oldest;) {
+        const vl_sim_pose_t *q = ring_at(sim, j);
+        const double dx = x[0] - q->p[0], dy = x[1] - q->p[1];
+        const double d2 = dx * dx + dy * dy;
+        if (d2 < w2 || (s - q->s > 2.0 * c->scatter_radius && d2 < r2)) {
+            return 1;
+        }
+    }
+    /* Path length bounds straight-line distance: poses farther ahead cannot be near x. */
+    for (j = k + 1; j < sim->planned && ring_at(sim, j)->s - s <= reach; ++j) {
+        const double dx = x[0] - ring_at(sim, j)->p[0], dy = x[1] - ring_at(sim, j)->p[1];
+        if (dx * dx + dy * dy < w2) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/** Scatters the points of planned segment k (from pose k to k + 1). */
+static void scatter_segment(vl_sim_t *sim, uint64_t k)
+{
+    const vl_sim_config_t *c = &sim->cfg;
+    vl_sim_rng_t *r = &sim->rng_map;
+    const vl_sim_pose_t *at = ring_at(sim, k);
+    const double len = ring_at(sim, k + 1)->s - at->s;
+
+    sim->spawn_carry += c->points_per_meter * len;
+    while (sim->spawn_carry >= 1.0) {
+        const double ang = VL_SIM_TWO_PI * rng_uniform(r);
+        const double rad = c->road_half_width +
+                           (c->scatter_radius - c->road_half_width) * pow(rng_uniform(r), c->scatter_exponent);
+        const double h = c->height_min + (c->height_max - c->height_min) * rng_uniform(r);
+        const double b[3] = {len * rng_uniform(r) + rad * cos(ang), rad * sin(ang), h};
+        vl_sim_point_t *pt = &sim->points[sim->next_point];
+        double x[3];
+        int i;
+
+        sim->spawn_carry -= 1.0;
+        for (i = 0; i < 3; ++i) {
+            x[i] = at->p[i] + at->R[3 * i] * b[0] + at->R[3 * i + 1] * b[1] + at->R[3 * i + 2] * b[2];
+        }
+        if (reject_point(sim, k, x)) {
+            continue;
+        }
+        memcpy(pt->x, x, sizeof(x));
+        /* Recycling a slot silently ends the old point's track: its id is never seen again. */
+        pt->track_id = -1;
+        pt->remaining = 0;
+        sim->next_point = (sim->next_point + 1) % VL_SIM_MAX_POINTS;
+        if (sim->num_points < VL_SIM_MAX_POINTS) {
+            ++sim->num_points;
+        }
+    }
+}
+
+/** Plans one more step: the velocities of the last planned pose and the next pose. */
+static void plan_one(vl_sim_t *sim)
+{
+    const vl_sim_config_t *c = &sim->cfg;
+    vl_sim_pose_t *cur = &sim->ring[(sim->planned - 1) % VL_SIM_POSE_RING];
+    vl_sim_pose_t *nxt = &sim->ring[sim->planned % VL_SIM_POSE_RING];
+    const double s = (double)(cur->utime - c->start_utime) * 1e-6;
+    const double dt = c->dt_min + (c->dt_max - c->dt_min) * rng_uniform(&sim->rng_path);
+    int64_t dt_us = (int64_t)floor(dt * 1e6 + 0.5);
+    double tau, len;
+
+    if (dt_us < 1) {
+        dt_us = 1;
+    }
+    tau = (double)dt_us * 1e-6;
+    velocity_profile(sim, s, cur->u);
+
+    nxt->utime = cur->utime + dt_us;
+    memcpy(nxt->R, cur->R, sizeof(cur->R));
+    memcpy(nxt->p, cur->p, sizeof(cur->p));
+    vl_sim_integrate(nxt->R, nxt->p, cur->u, tau);
+
+    len = tau * sqrt(cur->u[0] * cur->u[0] + cur->u[1] * cur->u[1] + cur->u[2] * cur->u[2]);
+    nxt->s = cur->s + len;
+    ++sim->planned;
+}
+
+/* ---------- public API ---------- */
+
+int vl_sim_init(vl_sim_t *sim, const vl_sim_config_t *cfg)
+{
+    vl_sim_pose_t *p0;
+    int i;
+    if (sim == NULL || cfg == NULL || !config_ok(cfg)) {
+        return -1;
+    }
+    memset(sim, 0, sizeof(*sim));
+    sim->cfg = *cfg;
+    rng_seed(&sim->rng_path, cfg->seed, 1);
+    rng_seed(&sim->rng_map, cfg->seed, 2);
+    rng_seed(&sim->rng_track, cfg->seed, 3);
+    rng_seed(&sim->rng_noise, cfg->seed ^ (cfg->noise_seed * 0xA0761D6478BD642FULL), 4 + cfg->noise_seed);
+    for (i = 0; i < 8; ++i) {
+        sim->phase[i] = VL_SIM_TWO_PI * rng_uniform(&sim->rng_path);
+    }
+    p0 = &sim->ring[0];
+    p0->utime = cfg->start_utime;
+    p0->R[0] = p0->R[4] = p0->R[8] = 1.0;
+    sim->planned = 1;
+    sim->step = 0;
+    return 0;
+}
+
+/** True [u_left, v, u_right, depth] of a world point seen from a pose; 1 when observable. */
+static int project(const vl_sim_t *sim, const vl_sim_pose_t *pose, const double x[3], double px[4])
+{
+    const vl_sim_config_t *c = &sim->cfg;
+    const double *T = c->calibration.cam_T_imu;
+    const double d[3] = {x[0] - pose->p[0], x[1] - pose->p[1], x[2] - pose->p[2]};
+    double b[3], cam[3];
+    double lo_u, hi_u, lo_v, hi_v;
+    int i;
+
+    for (i = 0; i < 3; ++i) { /* b = R^T d: the point in the IMU frame */
+        b[i] = pose->R[i] * d[0] + pose->R[3 + i] * d[1] + pose->R[6 + i] * d[2];
+    }
+    for (i = 0; i < 3; ++i) {
+        cam[i] = T[4 * i] * b[0] + T[4 * i + 1] * b[1] + T[4 * i + 2] * b[2] + T[4 * i + 3];
+    }
+    if (!(cam[2] > c->min_depth && cam[2] < c->max_depth)) {
+        return 0;
+    }
+    px[0] = c->calibration.fx * cam[0] / cam[2] + c->calibration.cx;
+    px[1] = c->calibration.fy * cam[1] / cam[2] + c->calibration.cy;
+    px[2] = px[0] - c->calibration.fx * c->calibration.baseline / cam[2];
+    px[3] = cam[2];
+    lo_u = c->border_margin;
+    hi_u = c->image_width - 1.0 - c->border_margin;
+    lo_v = c->border_margin;
+    hi_v = c->image_height - 1.0 - c->border_margin;
+    return px[0] >= lo_u && px[0] <= hi_u && px[2] >= lo_u && px[2] <= hi_u && px[1] >= lo_v &&
+           px[1] <= hi_v;
+}
+
+/** A noisy pixel inside [0, hi]: out-of-image draws are redrawn so observations stay in the image. */
+static double noisy_pixel(vl_sim_t *sim, double value, double hi)
+{
+    int tries;
+    double m = value;
+    for (tries = 0; tries < 64; ++tries) {
+        m = value + sim->cfg.pixel_noise * rng_normal(&sim->rng_noise);
+        if (m >= 0.0 && m <= hi) {
+            return m;
+        }
+    }
+    return value < 0.0 ? 0.0 : (value > hi ? hi : value);
+}
+
+static uint32_t draw_track_length(vl_sim_t *sim)
+{
+    const vl_sim_config_t *c = &sim->cfg;
+    /* floor(Exp(m)) has mean about m - 0.5, hence the half frame. */
+    const double m = c->track_length_mean - (double)c->track_length_min + 0.5;
+    const double u = 1.0 - rng_uniform(&sim->rng_track);
+    double extra = (m > 0.5) ? floor(-log(u) * m) : 0.0;
+    if (extra > 1e6) {
+        extra = 1e6;
+    }
+    return c->track_length_min + (uint32_t)extra;
+}
+
+int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
+                double true_R[9], double true_p[3])
+{
+    const vl_sim_config_t *c;
+    const vl_sim_pose_t *pose;
+    uint32_t n_obs = 0, i;
+    double px[4];
+
+    if (sim == NULL) {
+        return 1;
+    }
+    c = &sim->cfg;
+    if (c->num_steps != 0 && sim->step >= c->num_steps) {
+        return 1;
+    }
+
+    pose = &sim->ring[sim->step % VL_SIM_POSE_RING];
+    {
+        /* Points must exist wherever the camera can look (max_depth ahead, widened by the
+           scatter radius because a pose scatters behind itself too), and each scattered
+           segment needs the path planned scatter_radius beyond it for the road test. */
+        const double scatter_ahead = c->max_depth + c->scatter_radius + 5.0;
+        const double plan_ahead = scatter_ahead + c->scatter_radius + c->road_half_width + 5.0;
+        while (sim->planned < sim->step + 2 ||
+               (ring_at(sim, sim->planned - 1)->s - pose->s < plan_ahead &&
+                sim->planned - sim->step < VL_SIM_POSE_RING - 1)) {
+            plan_one(sim);
+        }
+        while (sim->scattered + 1 < sim->planned &&
+               ring_at(sim, sim->scattered)->s - pose->s < scatter_ahead) {
+            scatter_segment(sim, sim->scattered++);
+        }
+    }
+
+    /* Pass 1: continue live tracks (in slot order) while they stay visible and young. */
+    for (i = 0; i < sim->num_points; ++i) {
+        vl_sim_point_t *pt = &sim->points[i];
+        if (pt->track_id < 0) {
+            continue;
+        }
+        if (pt->remaining > 0 && n_obs < c->max_observations && project(sim, pose, pt->x, px)) {
+            --pt->remaining;
+            sim->cand_point[n_obs++] = i;
+        } else {
+            pt->track_id = -1;
+            pt->remaining = 0;
+        }
+    }
+    /* Ids are issued in order, so sorting the continued tracks by id gives an ascending frame. */
+    for (i = 1; i < n_obs; ++i) {
+        const uint32_t v = sim->cand_point[i];
+        uint32_t j = i;
+        while (j > 0 && sim->points[sim->cand_point[j - 1]].track_id > sim->points[v].track_id) {
+            sim->cand_point[j] = sim->cand_point[j - 1];
+            --j;
+        }
+        sim->cand_point[j] = v;
+    }
+
+    /* Pass 2: start new tracks on visible untracked points. */
+    for (i = 0; i < sim->num_points && n_obs < c->max_observations; ++i) {
+        vl_sim_point_t *pt = &sim->points[i];
+        if (pt->track_id >= 0 || !project(sim, pose, pt->x, px)) {
+            continue; /* continued this frame, or not visible */
+        }
+        if (rng_uniform(&sim->rng_track) >= c->detect_probability) {
+            continue;
+        }
+        pt->track_id = sim->next_track_id++;
+        pt->remaining = draw_track_length(sim) - 1;
+        memcpy(sim->track_x[(uint32_t)pt->track_id % VL_SIM_MAX_TRACKS], pt->x, sizeof(pt->x));
+        sim->cand_point[n_obs++] = i;
+    }
+
+    /* Measurements: noise draws in a fixed order (IMU first, then pixels by id). */
+    sim->last_true_imu.utime = pose->utime;
+    for (i = 0; i < 3; ++i) {
+        sim->last_true_imu.linear_velocity[i] = pose->u[i];
+        sim->last_true_imu.angular_velocity[i] = pose->u[3 + i];
+    }
+    {
+        double lin[3], ang[3];
+        for (i = 0; i < 3; ++i) {
+            lin[i] = pose->u[i] + c->linear_offset[i] + c->linear_noise * rng_normal(&sim->rng_noise);
+        }
+        for (i = 0; i < 3; ++i) {
+            ang[i] = pose->u[3 + i] + c->angular_offset[i] + c->angular_noise * rng_normal(&sim->rng_noise);
+        }
+        if (imu != NULL) {
+            imu->utime = pose->utime;
+            memcpy(imu->linear_velocity, lin, sizeof(lin));
+            memcpy(imu->angular_velocity, ang, sizeof(ang));
+        }
+    }
+    if (frame != NULL) {
+        frame->utime = pose->utime;
+        frame->count = n_obs;
+    }
+    for (i = 0; i < n_obs; ++i) {
+        const vl_sim_point_t *pt = &sim->points[sim->cand_point[i]];
+        const double hu = c->image_width - 1.0, hv = c->image_height - 1.0;
+        double ul, vl, ur, vr;
+        (void)project(sim, pose, pt->x, px);
+        ul = noisy_pixel(sim, px[0], hu);
+        vl = noisy_pixel(sim, px[1], hv);
+        ur = noisy_pixel(sim, px[2], hu);
+        vr = noisy_pixel(sim, px[1], hv);
+        if (frame != NULL) {
+            frame->obs[i].id = pt->track_id;
+            frame->obs[i].u_left = ul;
+            frame->obs[i].v_left = vl;
+            frame->obs[i].u_right = ur;
+            frame->obs[i].v_right = vr;
+        }
+    }
+    if (true_R != NULL) {
+        memcpy(true_R, pose->R, sizeof(pose->R));
+    }
+    if (true_p != NULL) {
+        memcpy(true_p, pose->p, sizeof(pose->p));
+    }
+
+    sim->vehicle_distance = pose->s;
+    ++sim->step;
+    return 0;
+}
+
+void vl_sim_calibration(const vl_sim_t *sim, vl_calibration_t *calib)
+{
+    if (sim != NULL && calib != NULL) {
+        *calib = sim->cfg.calibration;
+    }
+}
+
+int vl_sim_landmark(const vl_sim_t *sim, int32_t id, double position[3])
+{
+    if (sim == NULL || position == NULL || id < 0 || id >= sim->next_track_id ||
+        (int64_t)id < (int64_t)sim->next_track_id - VL_SIM_MAX_TRACKS) {
+        return -1;
+    }
+    memcpy(position, sim->track_x[(uint32_t)id % VL_SIM_MAX_TRACKS], 3 * sizeof(double));
+    return 0;
+}
+
+const vl_imu_sample_t *vl_sim_true_imu(const vl_sim_t *sim)
+{
+    return sim != NULL ? &sim->last_true_imu : NULL;
+}
+
+uint64_t vl_sim_steps_done(const vl_sim_t *sim)
+{
+    return sim != NULL ? sim->step : 0;
+}
+
+int32_t vl_sim_tracks_issued(const vl_sim_t *sim)
+{
+    return sim != NULL ? sim->next_track_id : 0;
+}
+
+double vl_sim_distance(const vl_sim_t *sim)
+{
+    return sim != NULL ? sim->vehicle_distance : 0.0;
+}
