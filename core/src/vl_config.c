@@ -14,7 +14,6 @@ void vl_config_default(vl_config_t *cfg)
     }
     memset(cfg, 0, sizeof(*cfg));
     cfg->mode = VL_MODE_SLAM;
-    cfg->landmark_param = VL_LANDMARK_INVERSE_DEPTH;
     cfg->estimate_input_offsets = 1;
 
     /* The seed data's velocities carry about 0.5 m/s and 0.05 rad/s of noise per
@@ -29,7 +28,10 @@ void vl_config_default(vl_config_t *cfg)
     cfg->pixel_noise = 1.5;
     cfg->min_disparity = 1.0;
     cfg->max_depth = 150.0;
-    cfg->gate_chi2 = 16.27; /* chi-square, 3 dof, 0.999 */
+    cfg->gate_chi2 = 11.34; /* chi-square, 3 dof, 0.99 */
+    cfg->max_broken_fraction = 0.3;
+    cfg->ransac_hypotheses = 32;
+    cfg->ransac_threshold = 3.0;
 
     cfg->max_landmarks = VL_MAX_LANDMARKS;
     cfg->min_track_length = 2;
@@ -45,7 +47,6 @@ void vl_config_preset_seed(vl_config_t *cfg)
         return;
     }
     vl_config_default(cfg);
-    cfg->landmark_param = VL_LANDMARK_XYZ;
     cfg->estimate_input_offsets = 0;
     /* W = diag(1e-5 I3, 1e-4 I3) per step; the estimator scales per-sample
      * velocity noise by the step, so at the nominal 0.1 s step these are W. */
@@ -53,6 +54,8 @@ void vl_config_preset_seed(vl_config_t *cfg)
     cfg->angular_velocity_noise = sqrt(1e-4) / 0.1;
     cfg->pixel_noise = sqrt(3500.0); /* V = 3500 I4 */
     cfg->gate_chi2 = 0.0;
+    cfg->ransac_hypotheses = 0;
+    cfg->max_broken_fraction = 1.0;
     cfg->min_track_length = 1;
     cfg->min_disparity = 1e-6;
     cfg->max_depth = 1e9;
@@ -76,9 +79,6 @@ vl_status_t vl_config_check(const vl_config_t *cfg)
     if (cfg->mode != VL_MODE_IMU_ONLY && cfg->mode != VL_MODE_MAPPING && cfg->mode != VL_MODE_SLAM) {
         return VL_ERR_CONFIG;
     }
-    if (cfg->landmark_param != VL_LANDMARK_XYZ && cfg->landmark_param != VL_LANDMARK_INVERSE_DEPTH) {
-        return VL_ERR_CONFIG;
-    }
     if (!positive_finite(cfg->linear_velocity_noise) || !positive_finite(cfg->angular_velocity_noise) ||
         !positive_finite(cfg->pixel_noise)) {
         return VL_ERR_CONFIG;
@@ -87,11 +87,15 @@ vl_status_t vl_config_check(const vl_config_t *cfg)
         !non_negative_finite(cfg->linear_offset_walk) || !non_negative_finite(cfg->angular_offset_walk)) {
         return VL_ERR_CONFIG;
     }
+    if (cfg->ransac_hypotheses > 0 && !positive_finite(cfg->ransac_threshold)) {
+        return VL_ERR_CONFIG;
+    }
     if (!positive_finite(cfg->min_disparity) || !positive_finite(cfg->max_depth) ||
         !non_negative_finite(cfg->gate_chi2) || !positive_finite(cfg->max_propagation_dt)) {
         return VL_ERR_CONFIG;
     }
-    if (cfg->min_track_length < 1) {
+    if (cfg->min_track_length < 1 || cfg->ransac_hypotheses > 4096 || !(cfg->max_broken_fraction > 0.0) ||
+        !(cfg->max_broken_fraction <= 1.0)) {
         return VL_ERR_CONFIG;
     }
     if (cfg->max_landmarks < 1 || cfg->max_landmarks > VL_MAX_LANDMARKS) {

@@ -2,9 +2,19 @@
  * The estimator: prediction on SE(3), stereo landmark initialization, the joint
  * update, and the bounded landmark window with exact marginalization.
  *
- * State order: [rho, phi (pose, right perturbation), linear offset, angular offset,
- * landmark 0, landmark 1, ...]. Offsets are always present in the layout; with
- * estimate_input_offsets off their covariance stays zero, so they never move.
+ * State order: [rho, phi (pose), linear offset, angular offset, landmark 0, ...].
+ * Offsets are always present in the layout; with estimate_input_offsets off
+ * their covariance stays zero, so they never move.
+ *
+ * Errors are invariant (world-frame) errors of the group SE_{K+1}(3) formed by the
+ * pose and the landmarks: T = exp(xi) T_hat, l_i = exp(phi) l_hat_i + J_l(phi) rho_i.
+ * In these coordinates the six unobservable directions (moving the whole world)
+ * do not depend on the estimate, so linearizing at a changing estimate cannot
+ * create information about them: without that, an EKF on this problem soon
+ * claims centimetres of certainty about an absolute position it cannot observe,
+ * then gates away good observations. Prediction leaves the error unchanged
+ * (Phi = I) apart from the input offsets; the observation of landmark i depends
+ * only on rho_i - rho, not on phi.
  */
 #include "vislam/vislam.h"
 
@@ -18,6 +28,8 @@
 #define LD VL_STATE_DIM_MAX
 #define IDX_OFFSET_LIN 6
 #define IDX_OFFSET_ANG 9
+/* Fewer tracked observations than this never count as a re-association. */
+#define VL_MIN_ROWS_FOR_REASSOCIATION 8
 
 typedef char vl_assert_capacity_positive[(VL_MAX_LANDMARKS >= 1) ? 1 : -1];
 typedef char vl_assert_capacity_bounded[(VL_MAX_LANDMARKS <= 4096) ? 1 : -1];
@@ -64,34 +76,10 @@ static void camera_extrinsics(const vl_calibration_t *cal, double Rc[9], double 
     }
 }
 
-/* World point of a landmark state and d(point)/d(state). */
-static void landmark_world_point(const vl_estimator_t *e, uint32_t slot, double pw[3], double dpw[9])
+/* World point of a window landmark, m. */
+static const double *landmark_point(const vl_estimator_t *e, uint32_t slot)
 {
-    const double *lam = &e->landmark_state[3 * slot];
-    if (e->cfg.landmark_param == VL_LANDMARK_XYZ) {
-        memcpy(pw, lam, 3 * sizeof(double));
-        if (dpw != NULL) {
-            static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
-            memcpy(dpw, I3, sizeof(I3));
-        }
-        return;
-    }
-    const vl_landmark_slot_t *s = &e->slots[slot];
-    const double rho = lam[2];
-    const double m[3] = {lam[0] / rho, lam[1] / rho, 1.0 / rho};
-    double Rm[3];
-    vl_matmul(s->anchor_R, m, Rm, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        pw[i] = Rm[i] + s->anchor_p[i];
-    }
-    if (dpw != NULL) {
-        /* p = R_a [a, b, 1] / rho + t_a */
-        for (int i = 0; i < 3; ++i) {
-            dpw[3 * i + 0] = s->anchor_R[3 * i + 0] / rho;
-            dpw[3 * i + 1] = s->anchor_R[3 * i + 1] / rho;
-            dpw[3 * i + 2] = -Rm[i] / rho;
-        }
-    }
+    return &e->landmark_state[3 * slot];
 }
 
 /*
@@ -129,19 +117,6 @@ static int project_world_point(const vl_estimator_t *e, const double pw[3], doub
     }
     /* d b / d p_w = R^T */
     vl_matmul_bt(dy_db, e->R, dy_dpw, 3, 3, 3);
-    return 0;
-}
-
-/* Predicted observation of a window landmark and its Jacobians. */
-static int predict_observation(const vl_estimator_t *e, uint32_t slot, double y[3], double H_pose[18],
-                               double H_lm[9])
-{
-    double pw[3], dpw[9], dy_dpw[9];
-    landmark_world_point(e, slot, pw, dpw);
-    if (project_world_point(e, pw, y, H_pose, dy_dpw) != 0) {
-        return -1;
-    }
-    vl_matmul(dy_dpw, dpw, H_lm, 3, 3, 3);
     return 0;
 }
 
@@ -207,65 +182,12 @@ static void propagate_to(vl_estimator_t *e, int64_t utime)
         log_msg(e, VL_LOG_WARN, utime, "long gap between inputs; propagating across it");
     }
 
-    double u[6];
-    for (int i = 0; i < 3; ++i) {
-        u[i] = e->held_linear[i] - e->offset_linear[i];
-        u[3 + i] = e->held_angular[i] - e->offset_angular[i];
-    }
     double xi[6], dR[9], dp[3];
-    for (int i = 0; i < 6; ++i) {
-        xi[i] = tau * u[i];
+    for (int i = 0; i < 3; ++i) {
+        xi[i] = tau * (e->held_linear[i] - e->offset_linear[i]);
+        xi[3 + i] = tau * (e->held_angular[i] - e->offset_angular[i]);
     }
     vl_se3_exp(xi, dR, dp);
-
-    {
-        /* Phi = [[Ad(exp(-tau u)), -tau J_r(tau u)], [0, I]]; noise enters through -tau J_r. */
-        double Rinv[9], pinv[3], Ad[36], Jr[36];
-        for (int i = 0; i < 3; ++i) {
-            for (int j = 0; j < 3; ++j) {
-                Rinv[3 * i + j] = dR[3 * j + i];
-            }
-        }
-        vl_matmul(Rinv, dp, pinv, 3, 3, 1);
-        for (int i = 0; i < 3; ++i) {
-            pinv[i] = -pinv[i];
-        }
-        vl_se3_adjoint(Rinv, pinv, Ad);
-        vl_se3_right_jacobian(xi, Jr);
-
-        double Phi[144], Q[144];
-        memset(Phi, 0, sizeof(Phi));
-        memset(Q, 0, sizeof(Q));
-        const int offsets = e->cfg.estimate_input_offsets;
-        for (int i = 0; i < 6; ++i) {
-            for (int j = 0; j < 6; ++j) {
-                Phi[12 * i + j] = Ad[6 * i + j];
-                Phi[12 * i + 6 + j] = offsets ? -tau * Jr[6 * i + j] : 0.0;
-            }
-            Phi[12 * (6 + i) + 6 + i] = 1.0;
-        }
-        const double sv2 = e->cfg.linear_velocity_noise * e->cfg.linear_velocity_noise;
-        const double sw2 = e->cfg.angular_velocity_noise * e->cfg.angular_velocity_noise;
-        /* Q_pose = tau^2 J_r diag(sv2, sw2) J_r^T */
-        for (int i = 0; i < 6; ++i) {
-            for (int j = 0; j < 6; ++j) {
-                double acc = 0.0;
-                for (int k = 0; k < 6; ++k) {
-                    acc += Jr[6 * i + k] * Jr[6 * j + k] * (k < 3 ? sv2 : sw2);
-                }
-                Q[12 * i + j] = tau * tau * acc;
-            }
-        }
-        if (offsets) {
-            const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
-            const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
-            for (int i = 0; i < 3; ++i) {
-                Q[12 * (6 + i) + 6 + i] = qv;
-                Q[12 * (9 + i) + 9 + i] = qw;
-            }
-        }
-        vl_la_propagate_core(e->P, LD, (int)vl_state_dim(e), Phi, Q);
-    }
 
     /* T <- T exp(tau u) */
     double Rn[9], t[3];
@@ -277,6 +199,49 @@ static void propagate_to(vl_estimator_t *e, int64_t utime)
         e->p[i] += t[i];
     }
     e->state_utime = utime;
+
+    /*
+     * Input noise n and offset error db both act as u -> u - n - db, which moves
+     * the pose error by G (n + db) with G = -tau Ad(T_new) J_r(tau u), and each
+     * landmark error by hat(l_i) times its rotation rows (the world turns under
+     * the landmarks, which stay put).
+     */
+    double Ad[36], Jr[36], Gp[36];
+    vl_se3_adjoint(e->R, e->p, Ad);
+    vl_se3_right_jacobian(xi, Jr);
+    vl_matmul(Ad, Jr, Gp, 6, 6, 6);
+    for (int i = 0; i < 36; ++i) {
+        Gp[i] *= -tau;
+    }
+    const uint32_t n = vl_state_dim(e);
+    double *G = e->work_PHt; /* n x 6, column-major; the update workspace is free here */
+    for (int j = 0; j < 6; ++j) {
+        double *col = &G[(size_t)j * n];
+        for (int i = 0; i < 6; ++i) {
+            col[i] = Gp[6 * i + j];
+            col[6 + i] = 0.0;
+        }
+        const double psi[3] = {Gp[6 * 3 + j], Gp[6 * 4 + j], Gp[6 * 5 + j]};
+        for (uint32_t s = 0; s < e->num_landmarks; ++s) {
+            double *g = &col[landmark_col(s)];
+            if (e->cfg.mode == VL_MODE_MAPPING) {
+                g[0] = g[1] = g[2] = 0.0; /* the trajectory is taken as known */
+                continue;
+            }
+            const double *l = landmark_point(e, s);
+            g[0] = l[1] * psi[2] - l[2] * psi[1];
+            g[1] = l[2] * psi[0] - l[0] * psi[2];
+            g[2] = l[0] * psi[1] - l[1] * psi[0];
+        }
+    }
+    const double sv2 = e->cfg.linear_velocity_noise * e->cfg.linear_velocity_noise;
+    const double sw2 = e->cfg.angular_velocity_noise * e->cfg.angular_velocity_noise;
+    const double noise_var[6] = {sv2, sv2, sv2, sw2, sw2, sw2};
+    const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
+    const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
+    const double offset_var[6] = {qv, qv, qv, qw, qw, qw};
+    vl_la_propagate(e->P, LD, (int)n, G, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL,
+                    e->work_PHt + (size_t)6 * n);
 }
 
 /* ---------------------------------------------------------------- window */
@@ -291,19 +256,34 @@ static int find_slot(const vl_estimator_t *e, int32_t id)
     return -1;
 }
 
+/* World position and covariance: delta l = rho_i - hat(l) phi (or rho_i alone when mapping). */
 static void landmark_output(const vl_estimator_t *e, uint32_t slot, vl_landmark_t *out)
 {
     const vl_landmark_slot_t *s = &e->slots[slot];
-    double dpw[9], Pll[9], tmp[9];
-    landmark_world_point(e, slot, out->position, dpw);
+    const double *l = landmark_point(e, slot);
+    memcpy(out->position, l, 3 * sizeof(double));
     const uint32_t c = landmark_col(slot);
-    for (int i = 0; i < 3; ++i) {
-        for (int j = 0; j < 3; ++j) {
-            Pll[3 * i + j] = e->P[(size_t)(c + j) * LD + (c + i)];
+    const uint32_t idx[6] = {3, 4, 5, c, c + 1, c + 2};
+    double B[36];
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < 6; ++j) {
+            B[6 * i + j] = e->P[(size_t)idx[j] * LD + idx[i]];
         }
     }
-    vl_matmul(dpw, Pll, tmp, 3, 3, 3);
-    vl_matmul_bt(tmp, dpw, out->covariance, 3, 3, 3);
+    double J[18] = {0};
+    if (e->cfg.mode != VL_MODE_MAPPING) {
+        double S[9];
+        vl_skew(l, S);
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) {
+                J[6 * i + j] = -S[3 * i + j];
+            }
+        }
+    }
+    J[3] = J[6 + 4] = J[12 + 5] = 1.0;
+    double JB[18];
+    vl_matmul(J, B, JB, 3, 6, 6);
+    vl_matmul_bt(JB, J, out->covariance, 3, 6, 3);
     out->id = s->id;
     out->observations = s->observations;
     out->first_utime = s->first_utime;
@@ -332,14 +312,15 @@ static void marginalize_slot(vl_estimator_t *e, uint32_t slot)
 /* ---------------------------------------------------------------- initialization */
 
 /*
- * Admits a landmark from one stereo observation y (compressed). The new block
- * gets its exact first-order covariance and cross-covariance to every state
- * through the pose: lambda = g(T exp(xi), y).
+ * Admits a landmark from one stereo observation y (compressed): l = R b + p with
+ * b the triangulated point in the IMU frame. In invariant coordinates its error is
+ * rho (the pose's) plus the pixel part, so it gets the exact first-order
+ * cross-covariance to every state through the pose translation error.
  */
 static void admit_landmark(vl_estimator_t *e, int32_t id, const double y[3])
 {
     const vl_calibration_t *cal = &e->cfg.calibration;
-    double Rc[9], tc[3], c[3], dc_dy[9], b[3], d[3];
+    double Rc[9], tc[3], c[3], dc_dy[9], b[3], d[3], Rb[3], RRc[9];
     camera_extrinsics(cal, Rc, tc);
     vl_stereo_triangulate(cal, y, c, dc_dy);
     for (int i = 0; i < 3; ++i) {
@@ -349,44 +330,17 @@ static void admit_landmark(vl_estimator_t *e, int32_t id, const double y[3])
 
     const uint32_t slot = e->num_landmarks;
     vl_landmark_slot_t *s = &e->slots[slot];
-    double *lam = &e->landmark_state[3 * slot];
-    double J_pose[18], J_obs[9], odot[18];
-    vl_circle_dot(b, odot); /* d (exp(xi) b) / d xi at xi = 0 */
-
-    if (e->cfg.landmark_param == VL_LANDMARK_XYZ) {
-        double Rb[3], RRc[9];
-        vl_matmul(e->R, b, Rb, 3, 3, 1);
-        for (int i = 0; i < 3; ++i) {
-            lam[i] = Rb[i] + e->p[i];
-        }
-        vl_matmul(e->R, odot, J_pose, 3, 3, 6);
-        vl_matmul_bt(e->R, Rc, RRc, 3, 3, 3); /* R Rc^T */
-        vl_matmul(RRc, dc_dy, J_obs, 3, 3, 3);
-    } else {
-        /* Anchor: the left camera at admission, w_T_cam = T inverse(cam_T_imu). */
-        double RcT_tc[3];
-        vl_matmul_bt(e->R, Rc, s->anchor_R, 3, 3, 3);
-        vl_matmul_at(Rc, tc, RcT_tc, 3, 3, 1);
-        double RR[3];
-        vl_matmul(e->R, RcT_tc, RR, 3, 3, 1);
-        for (int i = 0; i < 3; ++i) {
-            s->anchor_p[i] = e->p[i] - RR[i];
-        }
-        const double z = c[2];
-        lam[0] = c[0] / z;
-        lam[1] = c[1] / z;
-        lam[2] = 1.0 / z;
-        const double dl_dc[9] = {1.0 / z, 0.0, -c[0] / (z * z), 0.0, 1.0 / z, -c[1] / (z * z),
-                                 0.0,     0.0, -1.0 / (z * z)};
-        double Rc_odot[18];
-        vl_matmul(Rc, odot, Rc_odot, 3, 3, 6);
-        vl_matmul(dl_dc, Rc_odot, J_pose, 3, 3, 6);
-        vl_matmul(dl_dc, dc_dy, J_obs, 3, 3, 3);
+    double *l = &e->landmark_state[3 * slot];
+    vl_matmul(e->R, b, Rb, 3, 3, 1);
+    for (int i = 0; i < 3; ++i) {
+        l[i] = Rb[i] + e->p[i];
     }
-    if (e->cfg.mode == VL_MODE_MAPPING) {
-        /* Mapping treats the trajectory as known: no pose uncertainty, no correlation. */
-        memset(J_pose, 0, sizeof(J_pose));
+    double J_pose[18] = {0}, J_obs[9];
+    if (e->cfg.mode != VL_MODE_MAPPING) {
+        J_pose[0] = J_pose[7] = J_pose[14] = 1.0;
     }
+    vl_matmul_bt(e->R, Rc, RRc, 3, 3, 3); /* R Rc^T */
+    vl_matmul(RRc, dc_dy, J_obs, 3, 3, 3);
     const double s2 = e->cfg.pixel_noise * e->cfg.pixel_noise;
     const double noise[3] = {s2, 0.5 * s2, s2};
     vl_la_append_landmark(e->P, LD, (int)vl_state_dim(e), J_pose, J_obs, noise);
@@ -441,6 +395,230 @@ static void pending_compact(vl_estimator_t *e)
         }
     }
     e->num_pending = out;
+}
+
+/* ---------------------------------------------------------------- update */
+
+/*
+ * Update rows of one window landmark's observation; -1 when it is behind the camera.
+ * With b = R^T (l - p), to first order b = b_hat + R^T (rho_i - rho): the rows are
+ * A = dy/dc Rc R^T on rho_i and -A on rho, and zero on phi.
+ */
+static int make_row(const vl_estimator_t *e, uint32_t slot, const vl_stereo_obs_t *o, vl_la_obs_t *row)
+{
+    const vl_calibration_t *cal = &e->cfg.calibration;
+    const double *l = landmark_point(e, slot);
+    double Rc[9], tc[3], b[3], c[3], dy_dc[9], y_pred[3], y[3], RcRt[9];
+    camera_extrinsics(cal, Rc, tc);
+    const double d[3] = {l[0] - e->p[0], l[1] - e->p[1], l[2] - e->p[2]};
+    vl_matmul_at(e->R, d, b, 3, 3, 1);
+    vl_matmul(Rc, b, c, 3, 3, 1);
+    for (int i = 0; i < 3; ++i) {
+        c[i] += tc[i];
+    }
+    if (!(c[2] > 1e-3)) {
+        return -1;
+    }
+    vl_stereo_project(cal, c, y_pred, dy_dc);
+    vl_matmul_bt(Rc, e->R, RcRt, 3, 3, 3);
+    vl_matmul(dy_dc, RcRt, row->H_landmark, 3, 3, 3);
+    memset(row->H_pose, 0, sizeof(row->H_pose));
+    if (e->cfg.mode != VL_MODE_MAPPING) {
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) {
+                row->H_pose[6 * i + j] = -row->H_landmark[3 * i + j];
+            }
+        }
+    }
+    vl_stereo_compress(o, y);
+    const double s2 = e->cfg.pixel_noise * e->cfg.pixel_noise;
+    for (int r = 0; r < 3; ++r) {
+        row->residual[r] = y[r] - y_pred[r];
+    }
+    row->noise_var[0] = s2;
+    row->noise_var[1] = 0.5 * s2;
+    row->noise_var[2] = s2;
+    row->landmark_col = (int)landmark_col(slot);
+    return 0;
+}
+
+/* Squared pixel length of a row's residual after a correction dx. */
+static double residual_after(const vl_la_obs_t *row, const double *dx)
+{
+    double acc = 0.0;
+    const double *dl = &dx[row->landmark_col];
+    for (int r = 0; r < 3; ++r) {
+        double v = row->residual[r];
+        for (int j = 0; j < 6; ++j) {
+            v -= row->H_pose[6 * r + j] * dx[j];
+        }
+        for (int j = 0; j < 3; ++j) {
+            v -= row->H_landmark[3 * r + j] * dl[j];
+        }
+        acc += v * v;
+    }
+    return acc;
+}
+
+static void swap_rows(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t a, uint32_t b)
+{
+    if (a == b) {
+        return;
+    }
+    vl_la_obs_t t = rows[a];
+    rows[a] = rows[b];
+    rows[b] = t;
+    uint32_t s = e->work_slot[a];
+    e->work_slot[a] = e->work_slot[b];
+    e->work_slot[b] = s;
+    uint32_t f = e->work_frame_obs[a];
+    e->work_frame_obs[a] = e->work_frame_obs[b];
+    e->work_frame_obs[b] = f;
+}
+
+/* splitmix64: hypotheses drawn from the frame index, so a replay draws the same ones. */
+static uint64_t next_random(uint64_t *state)
+{
+    uint64_t z = (*state += 0x9E3779B97F4A7C15ull);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return z ^ (z >> 31);
+}
+
+/* Rows whose prior innovation passes gate_chi2, flagged in work_inlier; returns how many fail. */
+static uint32_t gate_rows(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
+{
+    uint32_t failed = 0;
+    for (uint32_t i = 0; i < k; ++i) {
+        double S[9];
+        vl_la_obs_covariance(e->P, LD, &rows[i], S);
+        e->work_inlier[i] = mahalanobis3(S, rows[i].residual) <= e->cfg.gate_chi2;
+        failed += !e->work_inlier[i];
+    }
+    return failed;
+}
+
+/*
+ * 1-point RANSAC: each hypothesis is the state one observation alone would give;
+ * the observations it explains to within ransac_threshold pixels are its
+ * support. Replaces the work_inlier flags with the best hypothesis' support.
+ */
+static void ransac_rows(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
+{
+    uint8_t *inlier = e->work_inlier;
+    const int n = (int)vl_state_dim(e);
+    const double thr2 = e->cfg.ransac_threshold * e->cfg.ransac_threshold;
+    const uint32_t hypotheses = e->cfg.ransac_hypotheses < k ? e->cfg.ransac_hypotheses : k;
+    uint32_t best_support = 0;
+    uint64_t rng = e->frame_index;
+    for (uint32_t h = 0; h < hypotheses; ++h) {
+        const uint32_t pick = (uint32_t)(next_random(&rng) % k);
+        if (vl_la_single_correction(e->P, LD, n, &rows[pick], e->work_PHt, e->work_dx) != 0) {
+            continue;
+        }
+        uint32_t support = 0;
+        for (uint32_t i = 0; i < k; ++i) {
+            support += residual_after(&rows[i], e->work_dx) <= thr2;
+        }
+        if (support > best_support) {
+            best_support = support;
+            for (uint32_t i = 0; i < k; ++i) {
+                inlier[i] = residual_after(&rows[i], e->work_dx) <= thr2;
+            }
+        }
+    }
+}
+
+/* Moves the rows flagged in work_inlier to the front; returns how many there are. */
+static uint32_t partition_rows(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t k)
+{
+    uint8_t *inlier = e->work_inlier;
+    uint32_t m = 0;
+    for (uint32_t i = 0; i < k; ++i) {
+        if (inlier[i]) {
+            swap_rows(e, rows, m, i);
+            uint8_t t = inlier[m];
+            inlier[m] = inlier[i];
+            inlier[i] = t;
+            m++;
+        }
+    }
+    return m;
+}
+
+/* Joint update with the first m rows, and the state correction it gives. */
+static vl_status_t apply_update(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t m)
+{
+    if (m == 0) {
+        return VL_OK;
+    }
+    vl_la_workspace_t ws = {e->work_PHt, e->work_S, e->work_dx};
+    const uint32_t n = vl_state_dim(e);
+    if (vl_la_update(e->P, LD, (int)n, rows, (int)m, &ws) != 0 || !all_finite(e->work_dx, (int)n)) {
+        e->counters.numerical_failures++;
+        return VL_ERR_NOT_POSITIVE_DEFINITE;
+    }
+    /* X <- exp(dx) X on SE_{K+1}(3): every position turns with the rotation
+     * correction and moves by J_l(phi) times its own translation correction. */
+    const double *dx = e->work_dx;
+    double dR[9], dp[3], Jl[9], Rn[9], v[3], w[3];
+    vl_se3_exp(dx, dR, dp);
+    vl_so3_left_jacobian(&dx[3], Jl);
+    vl_matmul(dR, e->R, Rn, 3, 3, 3);
+    memcpy(e->R, Rn, sizeof(Rn));
+    vl_so3_normalize(e->R);
+    vl_matmul(dR, e->p, v, 3, 3, 1);
+    for (int i = 0; i < 3; ++i) {
+        e->p[i] = v[i] + dp[i];
+        e->offset_linear[i] += dx[IDX_OFFSET_LIN + i];
+        e->offset_angular[i] += dx[IDX_OFFSET_ANG + i];
+    }
+    for (uint32_t s = 0; s < e->num_landmarks; ++s) {
+        double *l = &e->landmark_state[3 * s];
+        vl_matmul(dR, l, v, 3, 3, 1);
+        vl_matmul(Jl, &dx[landmark_col(s)], w, 3, 3, 1);
+        for (int i = 0; i < 3; ++i) {
+            l[i] = v[i] + w[i];
+        }
+    }
+    e->counters.observations_used += m;
+    return VL_OK;
+}
+
+/*
+ * Re-linearizes the rejected rows (rows[first .. first + count)) at the corrected
+ * state, keeps those within gate_chi2 of their posterior innovation covariance,
+ * and moves them to the front of rows. Returns how many were kept.
+ *
+ * The others are broken tracks: the seed data's tracker, when it detects new
+ * features, hands some existing ids to different points (their pixels jump tens
+ * of pixels away from the point's history but agree with its future). Such a
+ * landmark leaves the window for the map and its id starts a new landmark from
+ * this observation; its slot is marked 2 in work_seen and the observation is
+ * listed in work_broken.
+ */
+static uint32_t rescue_outliers(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_la_obs_t *rows,
+                                uint32_t first, uint32_t count)
+{
+    uint32_t m = 0;
+    for (uint32_t i = first; i < first + count; ++i) {
+        const uint32_t slot = e->work_slot[i];
+        vl_la_obs_t row;
+        if (make_row(e, slot, &frame->obs[e->work_frame_obs[i]], &row) != 0) {
+            continue;
+        }
+        double S[9];
+        vl_la_obs_covariance(e->P, LD, &row, S);
+        if (mahalanobis3(S, row.residual) <= e->cfg.gate_chi2) {
+            rows[m] = row;
+            e->work_slot[m] = slot;
+            m++;
+        } else {
+            e->work_seen[slot] = 2;
+            e->work_broken[e->num_broken++] = e->work_frame_obs[i];
+        }
+    }
+    return m;
 }
 
 /* ---------------------------------------------------------------- public API */
@@ -598,13 +776,13 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
 
     const vl_calibration_t *cal = &e->cfg.calibration;
     memset(e->work_seen, 0, sizeof(e->work_seen));
+    e->num_broken = 0;
 
     /* 1. Observations of window landmarks become update rows; the rest are candidates. */
     vl_la_obs_t *rows = e->work_rows;
     uint32_t k = 0;
     candidate_t candidates[VL_MAX_FRAME_FEATURES];
     uint32_t num_candidates = 0;
-    const double s2 = e->cfg.pixel_noise * e->cfg.pixel_noise;
 
     for (uint32_t i = 0; i < count; ++i) {
         const vl_stereo_obs_t *o = &frame->obs[i];
@@ -629,31 +807,12 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
                 continue;
             }
             vl_la_obs_t *row = &rows[k];
-            double y_pred[3], y[3];
-            if (predict_observation(e, (uint32_t)slot, y_pred, row->H_pose, row->H_landmark) != 0) {
-                e->counters.observations_gated++;
+            if (make_row(e, (uint32_t)slot, o, row) != 0) {
+                e->counters.observations_behind_camera++;
                 continue;
             }
-            vl_stereo_compress(o, y);
-            for (int r = 0; r < 3; ++r) {
-                row->residual[r] = y[r] - y_pred[r];
-            }
-            row->noise_var[0] = s2;
-            row->noise_var[1] = 0.5 * s2;
-            row->noise_var[2] = s2;
-            row->landmark_col = (int)landmark_col((uint32_t)slot);
-            if (e->cfg.mode == VL_MODE_MAPPING) {
-                memset(row->H_pose, 0, sizeof(row->H_pose));
-            }
-            if (e->cfg.gate_chi2 > 0.0) {
-                double S[9];
-                vl_la_obs_covariance(e->P, LD, row, S);
-                if (!(mahalanobis3(S, row->residual) <= e->cfg.gate_chi2)) {
-                    e->counters.observations_gated++;
-                    continue;
-                }
-            }
             e->work_frame_obs[k] = i;
+            e->work_slot[k] = (uint32_t)slot;
             k++;
         } else {
             int duplicate = 0;
@@ -692,45 +851,76 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         }
     }
 
-    /* 2. Joint update. */
-    if (k > 0) {
-        vl_la_workspace_t ws = {e->work_PHt, e->work_S, e->work_dx};
-        const uint32_t n = vl_state_dim(e);
-        if (vl_la_update(e->P, LD, (int)n, rows, (int)k, &ws) != 0) {
-            e->counters.numerical_failures++;
+    /* 2. Outlier rejection, then the joint update with the inliers, then a second
+     * update with the outliers that agree with the corrected state. */
+    if (k > 0 && e->cfg.gate_chi2 <= 0.0) {
+        /* no outlier rejection at all (the seed's plain EKF) */
+        vl_status_t st = apply_update(e, rows, k);
+        if (st != VL_OK) {
             log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
-            result = VL_ERR_NOT_POSITIVE_DEFINITE;
-        } else if (!all_finite(e->work_dx, (int)n)) {
-            e->counters.numerical_failures++;
-            result = VL_ERR_NOT_POSITIVE_DEFINITE;
+            result = st;
+        }
+    } else if (k > 0) {
+        const uint32_t contradicting = gate_rows(e, rows, k);
+        vl_status_t st = VL_OK;
+        if (k >= VL_MIN_ROWS_FOR_REASSOCIATION && (double)contradicting > e->cfg.max_broken_fraction * (double)k) {
+            /* Most tracks contradict the state at once: the tracker re-associated
+             * its ids (it does so when it detects new features). None of these
+             * observations is trusted; every observed landmark restarts. */
+            e->counters.frames_reassociated++;
+            e->counters.observations_gated += k;
+            for (uint32_t i = 0; i < k; ++i) {
+                e->work_seen[e->work_slot[i]] = 2;
+                e->work_broken[e->num_broken++] = e->work_frame_obs[i];
+            }
         } else {
-            double dR[9], dp[3], Rn[9], t[3];
-            vl_se3_exp(e->work_dx, dR, dp);
-            vl_matmul(e->R, dR, Rn, 3, 3, 3);
-            vl_matmul(e->R, dp, t, 3, 3, 1);
-            memcpy(e->R, Rn, sizeof(Rn));
-            vl_so3_normalize(e->R);
-            for (int i = 0; i < 3; ++i) {
-                e->p[i] += t[i];
-                e->offset_linear[i] += e->work_dx[IDX_OFFSET_LIN + i];
-                e->offset_angular[i] += e->work_dx[IDX_OFFSET_ANG + i];
+            if (e->cfg.ransac_hypotheses > 0 && k >= 2) {
+                ransac_rows(e, rows, k);
             }
-            for (uint32_t j = VL_CORE_DIM; j < n; ++j) {
-                e->landmark_state[j - VL_CORE_DIM] += e->work_dx[j];
+            const uint32_t inliers = partition_rows(e, rows, k);
+            const uint32_t rest = k - inliers;
+            st = apply_update(e, rows, inliers);
+            if (st == VL_OK && rest > 0) {
+                const uint32_t rescued = rescue_outliers(e, frame, rows, inliers, rest);
+                st = apply_update(e, rows, rescued);
+                e->counters.observations_rescued += rescued;
+                e->counters.observations_gated += rest - rescued;
+            } else {
+                e->counters.observations_gated += rest;
             }
-            e->counters.observations_used += k;
+        }
+        if (st != VL_OK) {
+            log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
+            result = st;
         }
     }
 
-    /* 3. Tracks that ended leave the window for the map. Walk down: marginalizing
-     * moves the last slot into the freed one. */
+    /* 3. Tracks that ended or broke leave the window for the map. Walk down:
+     * marginalizing moves the last slot into the freed one. */
     for (uint32_t s = e->num_landmarks; s-- > 0;) {
+        if (e->work_seen[s] == 2) {
+            marginalize_slot(e, s);
+            e->counters.tracks_broken++;
+            continue;
+        }
         if (e->work_seen[s]) {
             continue;
         }
         if (++e->slots[s].unseen_frames > e->cfg.max_unseen_frames) {
             marginalize_slot(e, s);
         }
+    }
+
+    /* A broken track restarts at once from this frame's observation. */
+    for (uint32_t b = 0; b < e->num_broken && num_candidates < VL_MAX_FRAME_FEATURES; ++b) {
+        const vl_stereo_obs_t *o = &frame->obs[e->work_broken[b]];
+        const double disparity = o->u_left - o->u_right;
+        if (!(disparity >= e->cfg.min_disparity) || depth_of(cal, disparity) > e->cfg.max_depth) {
+            continue;
+        }
+        candidates[num_candidates].obs = e->work_broken[b];
+        candidates[num_candidates].score = disparity;
+        num_candidates++;
     }
 
     /* 4. Admissions, best first; room is made only from landmarks not seen now. */
@@ -787,9 +977,29 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
     out->utime = e->state_utime;
     memcpy(out->rotation, e->R, sizeof(e->R));
     memcpy(out->position, e->p, sizeof(e->p));
+    /* The API reports the body-frame (right) perturbation: xi_r = Ad(T^-1) xi. */
+    double P6[36], Ad[36], Rt[9], pinv[3], tmp[36];
     for (int i = 0; i < 6; ++i) {
         for (int j = 0; j < 6; ++j) {
-            out->covariance[6 * i + j] = e->P[(size_t)j * LD + i];
+            P6[6 * i + j] = e->P[(size_t)j * LD + i];
+        }
+    }
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            Rt[3 * i + j] = e->R[3 * j + i];
+        }
+    }
+    vl_matmul(Rt, e->p, pinv, 3, 3, 1);
+    for (int i = 0; i < 3; ++i) {
+        pinv[i] = -pinv[i];
+    }
+    vl_se3_adjoint(Rt, pinv, Ad);
+    vl_matmul(Ad, P6, tmp, 6, 6, 6);
+    vl_matmul_bt(tmp, Ad, out->covariance, 6, 6, 6);
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < i; ++j) {
+            const double m = 0.5 * (out->covariance[6 * i + j] + out->covariance[6 * j + i]);
+            out->covariance[6 * i + j] = out->covariance[6 * j + i] = m;
         }
     }
     for (int i = 0; i < 3; ++i) {

@@ -49,29 +49,32 @@ extern "C" void vl_la_configure(void)
     Eigen::setCpuCacheSizes(32 * 1024, 96 * 1024, 96 * 1024);
 }
 
-extern "C" void vl_la_propagate_core(double *Pbuf, int ld, int n, const double Phi_rm[144], const double Q_rm[144])
+extern "C" void vl_la_propagate(double *Pbuf, int ld, int n, const double *Gbuf, const double noise_var[6],
+                                const double offset_var[6], double *work)
 {
     no_heap_scope guard;
     MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
-    const Eigen::Map<const Mat12> Phi(Phi_rm);
-    const Eigen::Map<const Mat12> Q(Q_rm);
+    const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 6>> G(Gbuf, n, 6);
+    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 6>> M(work, n, 6);
 
-    Mat12 core;
-    core.noalias() = Phi * P.topLeftCorner<12, 12>() * Phi.transpose();
-    core += Q;
-    P.topLeftCorner<12, 12>() = 0.5 * (core + core.transpose());
-
-    const Eigen::Index nl = n - 12;
-    if (nl > 0) {
-        /* Row block first, in 12-column panels held on the stack, then mirror. */
-        for (Eigen::Index j = 0; j < nl; j += 12) {
-            const Eigen::Index w = (nl - j < 12) ? nl - j : 12;
-            Eigen::Matrix<double, 12, Eigen::Dynamic, 0, 12, 12> panel(12, w);
-            panel.noalias() = Phi * P.block(0, 12 + j, 12, w);
-            P.block(0, 12 + j, 12, w) = panel;
-        }
-        P.bottomLeftCorner(nl, 12) = P.topRightCorner(12, nl).transpose();
+    if (offset_var != nullptr) {
+        /* Phi P Phi^T = P + G M^T + M G^T with M = P E + G (E^T P E) / 2. */
+        M = P.middleCols<6>(6);
+        const Eigen::Matrix<double, 6, 6> half_Pbb = 0.5 * P.block<6, 6>(6, 6);
+        M.noalias() += G * half_Pbb;
+        /* G M^T + M G^T = ((G + M)(G + M)^T - (G - M)(G - M)^T) / 2: two symmetric
+         * rank-6 updates, which Eigen evaluates in place. */
+        M += G;
+        P.selfadjointView<Eigen::Lower>().rankUpdate(M, 0.5);
+        M -= 2.0 * G;
+        P.selfadjointView<Eigen::Lower>().rankUpdate(M, -0.5);
     }
+    M.noalias() = G * Eigen::Map<const Eigen::Matrix<double, 6, 1>>(noise_var).cwiseSqrt().asDiagonal();
+    P.selfadjointView<Eigen::Lower>().rankUpdate(M);
+    if (offset_var != nullptr) {
+        P.diagonal().segment<6>(6) += Eigen::Map<const Eigen::Matrix<double, 6, 1>>(offset_var);
+    }
+    mirror_lower_to_upper(P);
 }
 
 extern "C" void vl_la_obs_covariance(const double *Pbuf, int ld, const vl_la_obs_t *obs, double S_rm[9])
@@ -93,6 +96,29 @@ extern "C" void vl_la_obs_covariance(const double *Pbuf, int ld, const vl_la_obs
     Eigen::Map<Mat33> S(S_rm);
     S.noalias() = H * B * H.transpose();
     S.diagonal() += Eigen::Map<const Eigen::Vector3d>(obs->noise_var);
+}
+
+extern "C" int vl_la_single_correction(const double *Pbuf, int ld, int n, const vl_la_obs_t *obs, double *work,
+                                       double *dx_out)
+{
+    no_heap_scope guard;
+    ConstMatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
+    const Eigen::Map<const Mat36> Hp(obs->H_pose);
+    const Eigen::Map<const Mat33> Hl(obs->H_landmark);
+    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 3>> PHt(work, n, 3);
+    PHt.noalias() = P.leftCols<6>() * Hp.transpose();
+    PHt.noalias() += P.middleCols<3>(obs->landmark_col) * Hl.transpose();
+    Eigen::Matrix3d S;
+    S.noalias() = Hp * PHt.topRows<6>();
+    S.noalias() += Hl * PHt.middleRows<3>(obs->landmark_col);
+    S.diagonal() += Eigen::Map<const Eigen::Vector3d>(obs->noise_var);
+    Eigen::LLT<Eigen::Matrix3d> llt(S);
+    if (llt.info() != Eigen::Success) {
+        return -1;
+    }
+    const Eigen::Vector3d w = llt.solve(Eigen::Map<const Eigen::Vector3d>(obs->residual));
+    Eigen::Map<Eigen::VectorXd>(dx_out, n).noalias() = PHt * w;
+    return 0;
 }
 
 extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws)

@@ -34,11 +34,15 @@ typedef struct {
 void vl_la_configure(void);
 
 /**
- * Propagates the leading 12 states through Phi: P_cc = Phi P_cc Phi^T + Q,
- * P_cl = Phi P_cl, P_lc = P_cl^T (landmark blocks are unchanged).
- * @param Phi 12x12 row-major; @param Q 12x12 row-major, symmetric.
+ * Prediction step in invariant error coordinates, where the error only moves
+ * through the inputs: with G (n x 6, column-major) the input Jacobian,
+ *   P <- Phi P Phi^T + G diag(noise_var) G^T (+ diag(offset_var) on states 6..11),
+ *   Phi = I + G E^T, E selecting the input offset states 6..11 (only when
+ *   offset_var is not NULL; otherwise the offsets are not estimated).
+ * @param work >= 6 n doubles
  */
-void vl_la_propagate_core(double *P, int ld, int n, const double Phi[144], const double Q[144]);
+void vl_la_propagate(double *P, int ld, int n, const double *G, const double noise_var[6], const double offset_var[6],
+                     double *work);
 
 /**
  * Joint EKF update with k stereo observations (m = 3k rows), touching only the
@@ -61,6 +65,13 @@ void vl_la_append_landmark(double *P, int ld, int n, const double J_pose[18], co
 
 /** Moves the 3-state block at src onto dst (rows and columns): exact marginalization of dst's old block. */
 void vl_la_move_block(double *P, int ld, int n, int dst, int src);
+
+/**
+ * The correction one observation alone would make: dx = P H^T S^-1 r (n entries),
+ * using work (>= 3 n doubles). Drives the 1-point RANSAC hypotheses.
+ * @return 0, or -1 when S is not positive definite.
+ */
+int vl_la_single_correction(const double *P, int ld, int n, const vl_la_obs_t *obs, double *work, double *dx);
 
 /** 3x3 innovation covariance of one observation: H P H^T + R over its pose and landmark blocks. */
 void vl_la_obs_covariance(const double *P, int ld, const vl_la_obs_t *obs, double S[9]);

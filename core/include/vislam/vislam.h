@@ -69,13 +69,6 @@ typedef enum {
     VL_MODE_SLAM = 2      /**< (c) Joint pose + landmark update. */
 } vl_mode_t;
 
-/** How a landmark's three state entries describe its position. */
-typedef enum {
-    VL_LANDMARK_XYZ = 0,          /**< World coordinates, m. */
-    VL_LANDMARK_INVERSE_DEPTH = 1 /**< [x/z, y/z, 1/z] in the left camera frame where it was first
-                                       seen (a fixed anchor): near-Gaussian for far points. */
-} vl_landmark_param_t;
-
 /** Stereo rig calibration. */
 typedef struct {
     double fx;            /**< px */
@@ -108,7 +101,6 @@ typedef void (*vl_log_fn)(void *user, vl_log_level_t level, int64_t utime, const
 /** Estimator configuration. Start from vl_config_default() or vl_config_preset_seed(). */
 typedef struct {
     vl_mode_t mode;                      /**< what to estimate */
-    vl_landmark_param_t landmark_param;  /**< landmark parameterization */
     int estimate_input_offsets;          /**< nonzero: estimate constant velocity offsets as states */
 
     double linear_velocity_noise;   /**< m/s, std of each linear velocity sample */
@@ -121,7 +113,11 @@ typedef struct {
     double pixel_noise;             /**< px, std of each pixel coordinate */
     double min_disparity;           /**< px, observations with smaller u_left - u_right are refused */
     double max_depth;               /**< m, landmarks initialized farther than this are refused */
-    double gate_chi2;               /**< Mahalanobis gate on each observation (3 dof); 0 disables */
+    double gate_chi2;               /**< chi-square (3 dof) gate on observations; 0 disables all outlier rejection */
+    double max_broken_fraction;     /**< a frame in which more than this fraction of tracked observations
+                                         fail the gate is a tracker re-association: all restart (0..1] */
+    uint32_t ransac_hypotheses;     /**< 1-point RANSAC hypotheses per frame; 0 gates each observation alone */
+    double ransac_threshold;        /**< px, residual a RANSAC hypothesis must leave for an observation to support it */
 
     uint32_t max_landmarks;         /**< active window, 1..VL_MAX_LANDMARKS */
     uint32_t max_unseen_frames;     /**< frames a landmark may go unobserved before it is marginalized */
@@ -185,16 +181,29 @@ typedef struct {
     uint64_t observations_invalid;      /**< non-finite pixels, duplicate ids, negative ids */
     uint64_t observations_low_disparity;/**< refused for disparity below min_disparity or depth above max_depth */
     uint64_t observations_used;         /**< applied in an update */
-    uint64_t observations_gated;        /**< refused by the Mahalanobis gate */
+    uint64_t observations_gated;        /**< refused as outliers (RANSAC or gate, and not rescued) */
+    uint64_t observations_rescued;      /**< outliers of the first pass accepted after the correction */
+    uint64_t observations_behind_camera;/**< predicted behind the camera: not used */
     uint64_t landmarks_initialized;     /**< admitted to the window */
     uint64_t landmarks_deferred;        /**< admissions postponed because the window was full */
     uint64_t tracks_inconsistent;       /**< candidate observations that disagreed with their track's previous one */
+    uint64_t frames_reassociated;       /**< frames whose tracked observations were all distrusted */
+    uint64_t tracks_broken;             /**< window landmarks whose observation contradicted them: mapped, id restarted */
     uint64_t landmarks_marginalized;    /**< left the window and handed to the sink */
     uint64_t landmarks_evicted;         /**< of those, removed early to make room */
     uint64_t numerical_failures;        /**< updates refused with VL_ERR_NOT_POSITIVE_DEFINITE */
     uint64_t time_gaps;                 /**< propagations longer than max_propagation_dt */
     uint32_t window_peak;               /**< most landmarks ever in the window */
 } vl_counters_t;
+
+/** One named counter, for printing and publishing every counter without listing them again. */
+typedef struct {
+    const char *name; /**< the vl_counters_t member's name */
+    uint64_t value;   /**< its value */
+} vl_counter_entry_t;
+
+/** Number of members of vl_counters_t. */
+#define VL_NUM_COUNTERS 23
 
 /** Per-landmark bookkeeping of the window (internal; read with vl_get_landmarks). */
 typedef struct {
@@ -203,8 +212,6 @@ typedef struct {
     uint32_t unseen_frames;
     int64_t first_utime;
     int64_t last_utime;
-    double anchor_R[9];   /**< world-from-anchor rotation (inverse depth only) */
-    double anchor_p[3];   /**< anchor origin in the world, m (inverse depth only) */
 } vl_landmark_slot_t;
 
 /** A candidate track not yet in the window: its age orders admissions. */
@@ -271,6 +278,9 @@ typedef struct {
     uint32_t work_slot[VL_MAX_LANDMARKS];
     uint32_t work_frame_obs[VL_MAX_LANDMARKS];
     uint8_t work_seen[VL_MAX_LANDMARKS];
+    uint8_t work_inlier[VL_MAX_LANDMARKS];
+    uint32_t work_broken[VL_MAX_LANDMARKS];
+    uint32_t num_broken;
 } vl_estimator_t;
 
 /** Fills the tuned default configuration (measured best on 0027; see README). */
@@ -316,6 +326,9 @@ vl_status_t vl_flush_landmarks(vl_estimator_t *e);
 
 /** Counters since vl_init. */
 const vl_counters_t *vl_get_counters(const vl_estimator_t *e);
+
+/** Fills out with every counter, in declaration order; returns VL_NUM_COUNTERS. */
+size_t vl_counters_list(const vl_counters_t *counters, vl_counter_entry_t out[VL_NUM_COUNTERS]);
 
 /** Landmarks now in the window. */
 uint32_t vl_window_size(const vl_estimator_t *e);

@@ -1,0 +1,707 @@
+/* INI configuration loader on top of libinih. */
+#include "vl_config_file.h"
+
+#include <errno.h>
+#include <float.h>
+#include <limits.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <ini.h>
+
+typedef enum {
+    KEY_DOUBLE,     /* double member of vl_config_t */
+    KEY_UINT32,     /* uint32_t member of vl_config_t */
+    KEY_BOOL,       /* int member of vl_config_t, true|false */
+    KEY_MODE,       /* vl_mode_t */
+    KEY_PRESET,     /* applied in the first pass */
+    KEY_OVERRIDE,   /* [calibration] override_log, not part of vl_config_t */
+    KEY_CAM_T_IMU   /* 16 numbers, may continue on indented lines */
+} key_type_t;
+
+typedef struct {
+    const char *section;
+    const char *name;
+    key_type_t type;
+    size_t offset;   /* into vl_config_t, for the value types */
+    double min;      /* inclusive unless min_open */
+    double max;      /* inclusive */
+    int min_open;    /* nonzero: value must be strictly greater than min */
+    int calibration; /* one of the six keys that make a complete calibration */
+} key_def_t;
+
+#define CFG_OFF(member) offsetof(vl_config_t, member)
+
+/* Ranges mirror vl_config_check so that a bad value is reported with its key and line. */
+static const key_def_t k_keys[] = {
+    {"estimator", "preset", KEY_PRESET, 0, 0, 0, 0, 0},
+    {"estimator", "mode", KEY_MODE, CFG_OFF(mode), 0, 0, 0, 0},
+    {"estimator", "estimate_input_offsets", KEY_BOOL, CFG_OFF(estimate_input_offsets), 0, 0, 0, 0},
+    {"estimator", "max_propagation_dt", KEY_DOUBLE, CFG_OFF(max_propagation_dt), 0.0, DBL_MAX, 1, 0},
+
+    {"noise", "linear_velocity", KEY_DOUBLE, CFG_OFF(linear_velocity_noise), 0.0, DBL_MAX, 1, 0},
+    {"noise", "angular_velocity", KEY_DOUBLE, CFG_OFF(angular_velocity_noise), 0.0, DBL_MAX, 1, 0},
+    {"noise", "linear_offset_prior", KEY_DOUBLE, CFG_OFF(linear_offset_prior), 0.0, DBL_MAX, 0, 0},
+    {"noise", "angular_offset_prior", KEY_DOUBLE, CFG_OFF(angular_offset_prior), 0.0, DBL_MAX, 0, 0},
+    {"noise", "linear_offset_walk", KEY_DOUBLE, CFG_OFF(linear_offset_walk), 0.0, DBL_MAX, 0, 0},
+    {"noise", "angular_offset_walk", KEY_DOUBLE, CFG_OFF(angular_offset_walk), 0.0, DBL_MAX, 0, 0},
+    {"noise", "pixel", KEY_DOUBLE, CFG_OFF(pixel_noise), 0.0, DBL_MAX, 1, 0},
+
+    {"landmarks", "max_landmarks", KEY_UINT32, CFG_OFF(max_landmarks), 1.0, (double)VL_MAX_LANDMARKS, 0, 0},
+    {"landmarks", "max_unseen_frames", KEY_UINT32, CFG_OFF(max_unseen_frames), 0.0, (double)UINT32_MAX, 0, 0},
+    {"landmarks", "min_disparity", KEY_DOUBLE, CFG_OFF(min_disparity), 0.0, DBL_MAX, 1, 0},
+    {"landmarks", "max_depth", KEY_DOUBLE, CFG_OFF(max_depth), 0.0, DBL_MAX, 1, 0},
+    {"landmarks", "min_track_length", KEY_UINT32, CFG_OFF(min_track_length), 1.0, (double)UINT32_MAX, 0, 0},
+
+    {"outliers", "gate_chi2", KEY_DOUBLE, CFG_OFF(gate_chi2), 0.0, DBL_MAX, 0, 0},
+    {"outliers", "max_broken_fraction", KEY_DOUBLE, CFG_OFF(max_broken_fraction), 0.0, 1.0, 1, 0},
+    {"outliers", "ransac_hypotheses", KEY_UINT32, CFG_OFF(ransac_hypotheses), 0.0, 4096.0, 0, 0},
+    {"outliers", "ransac_threshold", KEY_DOUBLE, CFG_OFF(ransac_threshold), 0.0, DBL_MAX, 1, 0},
+
+    {"calibration", "override_log", KEY_OVERRIDE, 0, 0, 0, 0, 0},
+    {"calibration", "fx", KEY_DOUBLE, CFG_OFF(calibration.fx), 0.0, DBL_MAX, 1, 1},
+    {"calibration", "fy", KEY_DOUBLE, CFG_OFF(calibration.fy), 0.0, DBL_MAX, 1, 1},
+    {"calibration", "cx", KEY_DOUBLE, CFG_OFF(calibration.cx), -DBL_MAX, DBL_MAX, 0, 1},
+    {"calibration", "cy", KEY_DOUBLE, CFG_OFF(calibration.cy), -DBL_MAX, DBL_MAX, 0, 1},
+    {"calibration", "baseline", KEY_DOUBLE, CFG_OFF(calibration.baseline), 0.0, DBL_MAX, 1, 1},
+    {"calibration", "cam_T_imu", KEY_CAM_T_IMU, CFG_OFF(calibration.cam_T_imu), 0, 0, 0, 1},
+};
+
+#define NUM_KEYS (sizeof(k_keys) / sizeof(k_keys[0]))
+#define NUM_CALIBRATION_KEYS 6
+
+/* Feeds inih one line at a time and knows which line it handed out last,
+   because this libinih is built without line numbers in the handler. */
+typedef struct {
+    FILE *f;
+    int line;           /* 1-based number of the line inih is processing */
+    int at_line_start;  /* the previous chunk ended a line */
+    int indented;       /* current line starts with whitespace (an inih continuation) */
+    int too_long_line;  /* first line longer than inih's buffer, 0 if none */
+} line_reader_t;
+
+typedef struct {
+    const char *path;
+    line_reader_t *reader;
+    int pass;                 /* 1: find the preset; 2: apply every key */
+    vl_config_t cfg;          /* working copy, committed only on success */
+    vl_config_file_info_t info;
+    int seen_line[NUM_KEYS];  /* line where each key was set, 0 if not */
+    int last_key;             /* index of the previous key, for continuations; -1 none */
+    int cam_count;            /* numbers of cam_T_imu read so far */
+    int preset_line;
+    char preset_value[32];
+    char *err;
+    size_t err_len;
+    int failed;
+} load_ctx_t;
+
+static void set_error(load_ctx_t *ctx, const char *fmt, ...)
+{
+    if (ctx->failed) {
+        return; /* the first error is the useful one */
+    }
+    ctx->failed = 1;
+    if (ctx->err != NULL && ctx->err_len > 0) {
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(ctx->err, ctx->err_len, fmt, ap);
+        va_end(ap);
+    }
+}
+
+static void key_error(load_ctx_t *ctx, const char *section, const char *name, const char *fmt, ...)
+{
+    if (ctx->failed) {
+        return;
+    }
+    char reason[256];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(reason, sizeof(reason), fmt, ap);
+    va_end(ap);
+    if (section[0] == '\0') {
+        set_error(ctx, "%s:%d: %s: %s", ctx->path, ctx->reader->line, name, reason);
+    } else {
+        set_error(ctx, "%s:%d: [%s] %s: %s", ctx->path, ctx->reader->line, section, name, reason);
+    }
+}
+
+static char *read_line(char *str, int num, void *stream)
+{
+    line_reader_t *lr = (line_reader_t *)stream;
+    char *s = fgets(str, num, lr->f);
+    if (s == NULL) {
+        return NULL;
+    }
+    if (lr->at_line_start) {
+        lr->line++;
+        lr->indented = (s[0] == ' ' || s[0] == '\t');
+    }
+    size_t n = strlen(s);
+    lr->at_line_start = n > 0 && s[n - 1] == '\n';
+    if (!lr->at_line_start) {
+        int c = fgetc(lr->f);
+        if (c != EOF) {
+            /* inih would parse the rest of the line as a new line: refuse the file instead. */
+            if (lr->too_long_line == 0) {
+                lr->too_long_line = lr->line;
+            }
+            while (c != EOF && c != '\n') {
+                c = fgetc(lr->f);
+            }
+        }
+        lr->at_line_start = 1;
+    }
+    return s;
+}
+
+/* strtod over the whole token, finite only. */
+static int parse_double(const char *text, double *out)
+{
+    if (text == NULL || *text == '\0') {
+        return -1;
+    }
+    char *end = NULL;
+    errno = 0;
+    double v = strtod(text, &end);
+    if (end == text || *end != '\0' || errno == ERANGE || !isfinite(v)) {
+        return -1;
+    }
+    *out = v;
+    return 0;
+}
+
+static int parse_bool(const char *text, int *out)
+{
+    if (strcmp(text, "true") == 0) {
+        *out = 1;
+        return 0;
+    }
+    if (strcmp(text, "false") == 0) {
+        *out = 0;
+        return 0;
+    }
+    return -1;
+}
+
+static int find_key(const char *section, const char *name, int *section_known)
+{
+    *section_known = 0;
+    for (size_t i = 0; i < NUM_KEYS; ++i) {
+        if (strcmp(k_keys[i].section, section) == 0) {
+            *section_known = 1;
+            if (strcmp(k_keys[i].name, name) == 0) {
+                return (int)i;
+            }
+        }
+    }
+    return -1;
+}
+
+static int check_range(load_ctx_t *ctx, const key_def_t *k, double v)
+{
+    int low = k->min_open ? !(v > k->min) : !(v >= k->min);
+    if (low || v > k->max) {
+        if (k->max == DBL_MAX) {
+            key_error(ctx, k->section, k->name, "%.17g is out of range: must be %s %.17g", v,
+                      k->min_open ? ">" : ">=", k->min);
+        } else if (k->min == -DBL_MAX) {
+            key_error(ctx, k->section, k->name, "%.17g is out of range: must be <= %.17g", v, k->max);
+        } else {
+            key_error(ctx, k->section, k->name, "%.17g is out of range %s%.17g, %.17g]", v,
+                      k->min_open ? "(" : "[", k->min, k->max);
+        }
+        return -1;
+    }
+    return 0;
+}
+
+/* Appends the numbers of one line of cam_T_imu (separated by spaces or commas). */
+static int parse_cam_numbers(load_ctx_t *ctx, const key_def_t *k, const char *value)
+{
+    double *m = (double *)((char *)&ctx->cfg + k->offset);
+    char token[64];
+    const char *p = value;
+    for (;;) {
+        while (*p == ' ' || *p == '\t' || *p == ',') {
+            ++p;
+        }
+        if (*p == '\0') {
+            return 0;
+        }
+        size_t n = strcspn(p, " \t,");
+        if (n >= sizeof(token)) {
+            key_error(ctx, k->section, k->name, "number too long");
+            return -1;
+        }
+        memcpy(token, p, n);
+        token[n] = '\0';
+        p += n;
+        double v;
+        if (parse_double(token, &v) != 0) {
+            key_error(ctx, k->section, k->name, "'%s' is not a finite number", token);
+            return -1;
+        }
+        if (ctx->cam_count >= 16) {
+            key_error(ctx, k->section, k->name, "more than 16 numbers");
+            return -1;
+        }
+        m[ctx->cam_count++] = v;
+    }
+}
+
+/* A rigid transform: last row 0 0 0 1, orthonormal right-handed rotation. */
+static int check_rigid(const double *m)
+{
+    if (m[12] != 0.0 || m[13] != 0.0 || m[14] != 0.0 || m[15] != 1.0) {
+        return -1;
+    }
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            double dot = 0.0;
+            for (int c = 0; c < 3; ++c) {
+                dot += m[4 * i + c] * m[4 * j + c];
+            }
+            if (fabs(dot - (i == j ? 1.0 : 0.0)) > 1e-6) {
+                return -1;
+            }
+        }
+    }
+    double det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) +
+                 m[2] * (m[4] * m[9] - m[5] * m[8]);
+    return det > 0.0 ? 0 : -1;
+}
+
+static int handle_pass1(load_ctx_t *ctx, const char *section, const char *name, const char *value)
+{
+    if (strcmp(section, "estimator") == 0 && strcmp(name, "preset") == 0 && ctx->preset_line == 0) {
+        ctx->preset_line = ctx->reader->line;
+        snprintf(ctx->preset_value, sizeof(ctx->preset_value), "%s", value);
+    }
+    return 1;
+}
+
+static int handle_key(load_ctx_t *ctx, int idx, const char *value)
+{
+    const key_def_t *k = &k_keys[idx];
+    char *member = (char *)&ctx->cfg + k->offset;
+    double v;
+    switch (k->type) {
+    case KEY_DOUBLE:
+        if (parse_double(value, &v) != 0) {
+            key_error(ctx, k->section, k->name, "'%s' is not a finite number", value);
+            return -1;
+        }
+        if (check_range(ctx, k, v) != 0) {
+            return -1;
+        }
+        *(double *)member = v;
+        return 0;
+    case KEY_UINT32: {
+        char *end = NULL;
+        errno = 0;
+        long long n = strtoll(value, &end, 10);
+        if (*value == '\0' || end == value || *end != '\0' || errno == ERANGE) {
+            key_error(ctx, k->section, k->name, "'%s' is not an integer", value);
+            return -1;
+        }
+        if (check_range(ctx, k, (double)n) != 0) {
+            return -1;
+        }
+        *(uint32_t *)member = (uint32_t)n;
+        return 0;
+    }
+    case KEY_BOOL: {
+        int b;
+        if (parse_bool(value, &b) != 0) {
+            key_error(ctx, k->section, k->name, "'%s' is not true or false", value);
+            return -1;
+        }
+        *(int *)member = b;
+        return 0;
+    }
+    case KEY_MODE: {
+        vl_mode_t mode;
+        if (vl_mode_from_name(value, &mode) != 0) {
+            key_error(ctx, k->section, k->name, "'%s' is not imu_only, mapping or slam", value);
+            return -1;
+        }
+        *(vl_mode_t *)member = mode;
+        return 0;
+    }
+    case KEY_PRESET: {
+        vl_preset_t preset;
+        if (vl_preset_from_name(value, &preset) != 0) {
+            key_error(ctx, k->section, k->name, "'%s' is not default or seed", value);
+            return -1;
+        }
+        return 0; /* applied before this pass */
+    }
+    case KEY_OVERRIDE: {
+        int b;
+        if (parse_bool(value, &b) != 0) {
+            key_error(ctx, k->section, k->name, "'%s' is not true or false", value);
+            return -1;
+        }
+        ctx->info.override_log = b;
+        return 0;
+    }
+    case KEY_CAM_T_IMU:
+        return parse_cam_numbers(ctx, k, value);
+    }
+    return -1;
+}
+
+static int handle_pass2(load_ctx_t *ctx, const char *section, const char *name, const char *value)
+{
+    int section_known;
+    int idx = find_key(section, name, &section_known);
+    if (idx < 0) {
+        if (section[0] == '\0') {
+            key_error(ctx, "", name, "key outside any section");
+        } else if (!section_known) {
+            key_error(ctx, section, name, "unknown section [%s]", section);
+        } else {
+            key_error(ctx, section, name, "unknown key");
+        }
+        ctx->last_key = -1;
+        return 0;
+    }
+    const key_def_t *k = &k_keys[idx];
+    const int continuation = ctx->reader->indented && idx == ctx->last_key;
+    if (continuation && k->type != KEY_CAM_T_IMU) {
+        key_error(ctx, section, name, "continuation lines are only allowed for cam_T_imu");
+        return 0;
+    }
+    if (ctx->seen_line[idx] != 0 && !continuation) {
+        key_error(ctx, section, name, "set twice (first on line %d)", ctx->seen_line[idx]);
+        return 0;
+    }
+    if (!continuation) {
+        ctx->seen_line[idx] = ctx->reader->line;
+        ctx->info.keys_set++;
+    }
+    ctx->last_key = idx;
+    return handle_key(ctx, idx, value) == 0 ? 1 : 0;
+}
+
+static int on_ini_entry(void *user, const char *section, const char *name, const char *value)
+{
+    load_ctx_t *ctx = (load_ctx_t *)user;
+    if (ctx->failed) {
+        return 1; /* already failed: let inih finish quietly */
+    }
+    if (value == NULL) {
+        value = "";
+    }
+    return ctx->pass == 1 ? handle_pass1(ctx, section, name, value) : handle_pass2(ctx, section, name, value);
+}
+
+static int parse_pass(load_ctx_t *ctx, FILE *f, int pass)
+{
+    line_reader_t reader;
+    memset(&reader, 0, sizeof(reader));
+    reader.f = f;
+    reader.at_line_start = 1;
+    ctx->reader = &reader;
+    ctx->pass = pass;
+    ctx->last_key = -1;
+    rewind(f);
+    int rc = ini_parse_stream(read_line, &reader, on_ini_entry, ctx);
+    if (reader.too_long_line != 0) {
+        ctx->failed = 0; /* the overlong line explains any later confusion best */
+        set_error(ctx, "%s:%d: line too long (inih reads at most 197 characters; split cam_T_imu "
+                       "over indented continuation lines)",
+                  ctx->path, reader.too_long_line);
+        return -1;
+    }
+    if (ferror(f)) {
+        set_error(ctx, "%s: read error: %s", ctx->path, strerror(errno));
+        return -1;
+    }
+    if (ctx->failed) {
+        return -1;
+    }
+    if (rc > 0) {
+        set_error(ctx, "%s:%d: syntax error (expected [section], key = value, or a ; or # comment)", ctx->path,
+                  rc);
+        return -1;
+    }
+    if (rc < 0) {
+        set_error(ctx, "%s: inih failed (%d)", ctx->path, rc);
+        return -1;
+    }
+    return 0;
+}
+
+static int finish_calibration(load_ctx_t *ctx)
+{
+    int set = 0;
+    const char *missing = NULL;
+    int cam_idx = -1;
+    int override_idx = -1;
+    for (size_t i = 0; i < NUM_KEYS; ++i) {
+        if (k_keys[i].type == KEY_CAM_T_IMU) {
+            cam_idx = (int)i;
+        }
+        if (k_keys[i].type == KEY_OVERRIDE) {
+            override_idx = (int)i;
+        }
+        if (!k_keys[i].calibration) {
+            continue;
+        }
+        if (ctx->seen_line[i] != 0) {
+            ++set;
+        } else if (missing == NULL) {
+            missing = k_keys[i].name;
+        }
+    }
+    if (cam_idx >= 0 && ctx->seen_line[cam_idx] != 0) {
+        if (ctx->cam_count != 16) {
+            set_error(ctx, "%s:%d: [calibration] cam_T_imu: %d numbers, expected 16 (row-major 4x4)", ctx->path,
+                      ctx->seen_line[cam_idx], ctx->cam_count);
+            return -1;
+        }
+        if (check_rigid(ctx->cfg.calibration.cam_T_imu) != 0) {
+            set_error(ctx, "%s:%d: [calibration] cam_T_imu: not a rigid transform (rotation must be "
+                           "orthonormal with det +1, last row 0 0 0 1)",
+                      ctx->path, ctx->seen_line[cam_idx]);
+            return -1;
+        }
+    }
+    if (set != 0 && set != NUM_CALIBRATION_KEYS) {
+        set_error(ctx, "%s: [calibration] is incomplete: %s is missing (give fx fy cx cy baseline cam_T_imu, "
+                       "or none of them)",
+                  ctx->path, missing);
+        return -1;
+    }
+    if (ctx->info.override_log && set == 0) {
+        set_error(ctx, "%s:%d: [calibration] override_log: true, but the file gives no calibration", ctx->path,
+                  ctx->seen_line[override_idx]);
+        return -1;
+    }
+    ctx->info.has_calibration = set == NUM_CALIBRATION_KEYS;
+    return 0;
+}
+
+static int calibration_valid(const vl_config_t *cfg)
+{
+    vl_config_t probe;
+    vl_config_default(&probe);
+    probe.calibration = cfg->calibration;
+    return vl_config_check(&probe) == VL_OK;
+}
+
+static void set_placeholder_calibration(vl_calibration_t *c)
+{
+    memset(c, 0, sizeof(*c));
+    c->fx = 1.0;
+    c->fy = 1.0;
+    c->baseline = 1.0;
+    c->cam_T_imu[0] = c->cam_T_imu[5] = c->cam_T_imu[10] = c->cam_T_imu[15] = 1.0;
+}
+
+vl_status_t vl_config_load_ini_ex(const char *path, vl_config_t *cfg, vl_config_file_info_t *info,
+                                  char *err, size_t err_len)
+{
+    if (err != NULL && err_len > 0) {
+        err[0] = '\0';
+    }
+    if (path == NULL || cfg == NULL) {
+        if (err != NULL && err_len > 0) {
+            snprintf(err, err_len, "vl_config_load_ini: NULL argument");
+        }
+        return VL_ERR_NULL;
+    }
+    /* About 8 KB: static would not be reentrant, and this is not a hot path. */
+    load_ctx_t *ctx = (load_ctx_t *)calloc(1, sizeof(*ctx));
+    if (ctx == NULL) {
+        if (err != NULL && err_len > 0) {
+            snprintf(err, err_len, "%s: out of memory", path);
+        }
+        return VL_ERR_CONFIG;
+    }
+    ctx->path = path;
+    ctx->cfg = *cfg;
+    ctx->info.preset = VL_PRESET_NONE;
+    ctx->err = err;
+    ctx->err_len = err_len;
+
+    vl_status_t status = VL_ERR_CONFIG;
+    FILE *f = fopen(path, "r");
+    if (f == NULL) {
+        set_error(ctx, "%s: cannot open: %s", path, strerror(errno));
+        goto done;
+    }
+    if (parse_pass(ctx, f, 1) != 0) {
+        goto done;
+    }
+    if (ctx->preset_line != 0) {
+        vl_preset_t preset;
+        if (vl_preset_from_name(ctx->preset_value, &preset) != 0) {
+            set_error(ctx, "%s:%d: [estimator] preset: '%s' is not default or seed", path, ctx->preset_line,
+                      ctx->preset_value);
+            goto done;
+        }
+        vl_config_apply_preset(&ctx->cfg, preset);
+        ctx->info.preset = preset;
+    }
+    if (parse_pass(ctx, f, 2) != 0 || finish_calibration(ctx) != 0) {
+        goto done;
+    }
+    /* Without a calibration in the file the rig comes from the log later, so check the
+       rest with a stand-in rig rather than fail on the default's empty one. */
+    vl_config_t checked = ctx->cfg;
+    if (!ctx->info.has_calibration && !calibration_valid(&checked)) {
+        set_placeholder_calibration(&checked.calibration);
+    }
+    if (vl_config_check(&checked) != VL_OK) {
+        set_error(ctx, "%s: the resulting configuration is rejected by vl_config_check "
+                       "(every key is in range, so a combination of values is invalid)",
+                  path);
+        goto done;
+    }
+    *cfg = ctx->cfg;
+    if (info != NULL) {
+        *info = ctx->info;
+    }
+    status = VL_OK;
+done:
+    if (f != NULL) {
+        fclose(f);
+    }
+    free(ctx);
+    return status;
+}
+
+vl_status_t vl_config_load_ini(const char *path, vl_config_t *cfg, char *err, size_t err_len)
+{
+    return vl_config_load_ini_ex(path, cfg, NULL, err, err_len);
+}
+
+const char *vl_mode_name(vl_mode_t mode)
+{
+    switch (mode) {
+    case VL_MODE_IMU_ONLY:
+        return "imu_only";
+    case VL_MODE_MAPPING:
+        return "mapping";
+    case VL_MODE_SLAM:
+        return "slam";
+    }
+    return "?";
+}
+
+const char *vl_preset_name(vl_preset_t preset)
+{
+    switch (preset) {
+    case VL_PRESET_DEFAULT:
+        return "default";
+    case VL_PRESET_SEED:
+        return "seed";
+    case VL_PRESET_NONE:
+        break;
+    }
+    return "none";
+}
+
+int vl_mode_from_name(const char *name, vl_mode_t *mode)
+{
+    if (name == NULL || mode == NULL) {
+        return -1;
+    }
+    if (strcmp(name, "imu_only") == 0) {
+        *mode = VL_MODE_IMU_ONLY;
+    } else if (strcmp(name, "mapping") == 0) {
+        *mode = VL_MODE_MAPPING;
+    } else if (strcmp(name, "slam") == 0) {
+        *mode = VL_MODE_SLAM;
+    } else {
+        return -1;
+    }
+    return 0;
+}
+
+int vl_preset_from_name(const char *name, vl_preset_t *preset)
+{
+    if (name == NULL || preset == NULL) {
+        return -1;
+    }
+    if (strcmp(name, "default") == 0) {
+        *preset = VL_PRESET_DEFAULT;
+    } else if (strcmp(name, "seed") == 0) {
+        *preset = VL_PRESET_SEED;
+    } else {
+        return -1;
+    }
+    return 0;
+}
+
+void vl_config_apply_preset(vl_config_t *cfg, vl_preset_t preset)
+{
+    if (cfg == NULL || preset == VL_PRESET_NONE) {
+        return;
+    }
+    vl_config_t fresh;
+    if (preset == VL_PRESET_SEED) {
+        vl_config_preset_seed(&fresh);
+    } else {
+        vl_config_default(&fresh);
+    }
+    /* The rig and the host's callbacks are not tuning: keep them. */
+    fresh.calibration = cfg->calibration;
+    fresh.landmark_sink = cfg->landmark_sink;
+    fresh.landmark_sink_user = cfg->landmark_sink_user;
+    fresh.log = cfg->log;
+    fresh.log_user = cfg->log_user;
+    *cfg = fresh;
+}
+
+int vl_config_write_ini(FILE *f, const vl_config_t *cfg, int with_calibration)
+{
+    if (f == NULL || cfg == NULL) {
+        return -1;
+    }
+    fprintf(f, "[estimator]\n");
+    fprintf(f, "mode = %s\n", vl_mode_name(cfg->mode));
+    fprintf(f, "estimate_input_offsets = %s\n", cfg->estimate_input_offsets ? "true" : "false");
+    fprintf(f, "max_propagation_dt = %.17g\n", cfg->max_propagation_dt);
+    fprintf(f, "\n[noise]\n");
+    fprintf(f, "linear_velocity = %.17g\n", cfg->linear_velocity_noise);
+    fprintf(f, "angular_velocity = %.17g\n", cfg->angular_velocity_noise);
+    fprintf(f, "linear_offset_prior = %.17g\n", cfg->linear_offset_prior);
+    fprintf(f, "angular_offset_prior = %.17g\n", cfg->angular_offset_prior);
+    fprintf(f, "linear_offset_walk = %.17g\n", cfg->linear_offset_walk);
+    fprintf(f, "angular_offset_walk = %.17g\n", cfg->angular_offset_walk);
+    fprintf(f, "pixel = %.17g\n", cfg->pixel_noise);
+    fprintf(f, "\n[landmarks]\n");
+    fprintf(f, "max_landmarks = %u\n", (unsigned)cfg->max_landmarks);
+    fprintf(f, "max_unseen_frames = %u\n", (unsigned)cfg->max_unseen_frames);
+    fprintf(f, "min_disparity = %.17g\n", cfg->min_disparity);
+    fprintf(f, "max_depth = %.17g\n", cfg->max_depth);
+    fprintf(f, "min_track_length = %u\n", (unsigned)cfg->min_track_length);
+    fprintf(f, "\n[outliers]\n");
+    fprintf(f, "gate_chi2 = %.17g\n", cfg->gate_chi2);
+    fprintf(f, "max_broken_fraction = %.17g\n", cfg->max_broken_fraction);
+    fprintf(f, "ransac_hypotheses = %u\n", (unsigned)cfg->ransac_hypotheses);
+    fprintf(f, "ransac_threshold = %.17g\n", cfg->ransac_threshold);
+    if (with_calibration) {
+        const vl_calibration_t *c = &cfg->calibration;
+        fprintf(f, "\n[calibration]\n");
+        fprintf(f, "fx = %.17g\n", c->fx);
+        fprintf(f, "fy = %.17g\n", c->fy);
+        fprintf(f, "cx = %.17g\n", c->cx);
+        fprintf(f, "cy = %.17g\n", c->cy);
+        fprintf(f, "baseline = %.17g\n", c->baseline);
+        /* One row per line keeps each line under inih's 200-character limit. */
+        for (int r = 0; r < 4; ++r) {
+            fprintf(f, "%s%.17g %.17g %.17g %.17g\n", r == 0 ? "cam_T_imu = " : "            ",
+                    c->cam_T_imu[4 * r], c->cam_T_imu[4 * r + 1], c->cam_T_imu[4 * r + 2], c->cam_T_imu[4 * r + 3]);
+        }
+    }
+    return ferror(f) ? -1 : 0;
+}

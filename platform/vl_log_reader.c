@@ -1,0 +1,191 @@
+/* LCM event log reader: decodes vislam messages into core types. */
+#include "vl_log_reader.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <lcm/eventlog.h>
+
+#include "vl_msg.h"
+
+void vl_log_channels_default(vl_log_channels_t *channels)
+{
+    if (channels == NULL) {
+        return;
+    }
+    channels->imu = VL_CHANNEL_IMU;
+    channels->features = VL_CHANNEL_FEATURES;
+    channels->calibration = VL_CHANNEL_CALIBRATION;
+}
+
+static int copy_channel(char dst[VL_LOG_CHANNEL_MAX], const char *src, const char *fallback)
+{
+    if (src == NULL || src[0] == '\0') {
+        src = fallback;
+    }
+    size_t n = strlen(src);
+    if (n >= VL_LOG_CHANNEL_MAX) {
+        return -1;
+    }
+    memcpy(dst, src, n + 1);
+    return 0;
+}
+
+int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channels_t *channels,
+                       char *err, size_t err_len)
+{
+    if (r == NULL || path == NULL) {
+        if (err != NULL && err_len > 0) {
+            snprintf(err, err_len, "vl_log_reader_open: NULL argument");
+        }
+        return -1;
+    }
+    memset(r, 0, sizeof(*r));
+    r->file_size = -1;
+    vl_log_channels_t def;
+    vl_log_channels_default(&def);
+    const vl_log_channels_t *ch = channels != NULL ? channels : &def;
+    if (copy_channel(r->imu_channel, ch->imu, def.imu) != 0 ||
+        copy_channel(r->features_channel, ch->features, def.features) != 0 ||
+        copy_channel(r->calibration_channel, ch->calibration, def.calibration) != 0) {
+        if (err != NULL && err_len > 0) {
+            snprintf(err, err_len, "channel name longer than %d characters", VL_LOG_CHANNEL_MAX - 1);
+        }
+        return -1;
+    }
+
+    errno = 0;
+    lcm_eventlog_t *log = lcm_eventlog_create(path, "r");
+    if (log == NULL) {
+        if (err != NULL && err_len > 0) {
+            snprintf(err, err_len, "%s: cannot open log: %s", path,
+                     errno != 0 ? strerror(errno) : "unknown error");
+        }
+        return -1;
+    }
+    if (fseek(log->f, 0, SEEK_END) == 0) {
+        r->file_size = ftell(log->f);
+    }
+    if (fseek(log->f, 0, SEEK_SET) != 0) {
+        lcm_eventlog_destroy(log);
+        if (err != NULL && err_len > 0) {
+            snprintf(err, err_len, "%s: cannot seek: %s", path, strerror(errno));
+        }
+        return -1;
+    }
+    r->log = log;
+    return 0;
+}
+
+/* A payload must be exactly one message: a short read or leftover bytes both mean corruption. */
+static int check_decoded(int used, int len, const char *type, vl_log_event_t *ev)
+{
+    if (used < 0) {
+        snprintf(ev->error, sizeof(ev->error), "%s event %lld: %d-byte payload is not a valid %s (size or hash)",
+                 ev->channel, (long long)ev->event_number, len, type);
+        return 0;
+    }
+    if (used != len) {
+        snprintf(ev->error, sizeof(ev->error), "%s event %lld: %d trailing bytes after %s", ev->channel,
+                 (long long)ev->event_number, len - used, type);
+        return 0;
+    }
+    return 1;
+}
+
+vl_log_event_kind_t vl_log_reader_next(vl_log_reader_t *r, vl_log_event_t *ev)
+{
+    if (r == NULL || ev == NULL) {
+        return VL_LOG_EVENT_END;
+    }
+    ev->kind = VL_LOG_EVENT_END;
+    ev->error[0] = '\0';
+    if (r->log == NULL || r->ended) {
+        return VL_LOG_EVENT_END;
+    }
+    lcm_eventlog_t *log = (lcm_eventlog_t *)r->log;
+
+    for (;;) {
+        long before = ftell(log->f);
+        lcm_eventlog_event_t *le = lcm_eventlog_read_next_event(log);
+        if (le == NULL) {
+            /* LCM reports both a clean end and an unreadable event as NULL: tell them apart
+               by whether any bytes were left after the last good event. */
+            r->ended = 1;
+            r->truncated = r->file_size >= 0 && before >= 0 && before < r->file_size;
+            return VL_LOG_EVENT_END;
+        }
+        r->stats.events++;
+        ev->event_number = le->eventnum;
+        ev->log_utime = le->timestamp;
+        snprintf(ev->channel, sizeof(ev->channel), "%s", le->channel);
+
+        const int len = le->datalen;
+        const void *data = le->data;
+        int ok = 1;
+        vl_log_event_kind_t kind;
+        if (strcmp(le->channel, r->imu_channel) == 0) {
+            ok = check_decoded(vislam_imu_t_decode(data, 0, len, &r->imu_msg), len, "vislam.imu_t", ev);
+            if (ok) {
+                vl_msg_to_imu(&r->imu_msg, &ev->imu);
+                r->stats.imu++;
+            }
+            kind = VL_LOG_EVENT_IMU;
+        } else if (strcmp(le->channel, r->features_channel) == 0) {
+            ok = check_decoded(vislam_stereo_frame_t_decode(data, 0, len, &r->frame_msg), len,
+                                "vislam.stereo_frame_t", ev);
+            if (ok && vl_msg_to_stereo_frame(&r->frame_msg, &ev->frame) != VL_MSG_OK) {
+                snprintf(ev->error, sizeof(ev->error), "%s event %lld: num_features %d outside 0..%d",
+                         ev->channel, (long long)ev->event_number, (int)r->frame_msg.num_features,
+                         VISLAM_STEREO_FRAME_T_MAX_FEATURES);
+                ok = 0;
+            }
+            if (ok) {
+                r->stats.frames++;
+            }
+            kind = VL_LOG_EVENT_FRAME;
+        } else if (strcmp(le->channel, r->calibration_channel) == 0) {
+            ok = check_decoded(vislam_calibration_t_decode(data, 0, len, &r->calibration_msg), len,
+                                "vislam.calibration_t", ev);
+            if (ok) {
+                vl_msg_to_calibration(&r->calibration_msg, &ev->calibration, &ev->calibration_utime);
+                r->stats.calibrations++;
+            }
+            kind = VL_LOG_EVENT_CALIBRATION;
+        } else {
+            r->stats.skipped++;
+            lcm_eventlog_free_event(le);
+            continue;
+        }
+        lcm_eventlog_free_event(le);
+        if (!ok) {
+            r->stats.decode_errors++;
+            kind = VL_LOG_EVENT_DECODE_ERROR;
+        }
+        ev->kind = kind;
+        return kind;
+    }
+}
+
+const vl_log_reader_stats_t *vl_log_reader_stats(const vl_log_reader_t *r)
+{
+    return r != NULL ? &r->stats : NULL;
+}
+
+int vl_log_reader_truncated(const vl_log_reader_t *r)
+{
+    return r != NULL && r->truncated;
+}
+
+void vl_log_reader_close(vl_log_reader_t *r)
+{
+    if (r == NULL) {
+        return;
+    }
+    if (r->log != NULL) {
+        lcm_eventlog_destroy((lcm_eventlog_t *)r->log);
+        r->log = NULL;
+    }
+    r->ended = 1;
+}

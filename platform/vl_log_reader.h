@@ -1,0 +1,122 @@
+/**
+ * @file vl_log_reader.h
+ * @brief Reads an LCM event log and decodes vislam messages into core types.
+ *
+ * Events come back one at a time in log order. A payload that fails to decode
+ * is reported as VL_LOG_EVENT_DECODE_ERROR and counted, and reading goes on
+ * with the next event; events on other channels are skipped and counted.
+ * Decoding uses fixed-size storage inside the reader (the message types have
+ * fixed-size arrays), so no allocation happens per event beyond LCM's own
+ * event buffer.
+ */
+#ifndef VISLAM_PLATFORM_VL_LOG_READER_H
+#define VISLAM_PLATFORM_VL_LOG_READER_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "vislam/vislam.h"
+
+#include "vislam_calibration_t.h"
+#include "vislam_imu_t.h"
+#include "vislam_stereo_frame_t.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/** Longest channel name the reader stores, terminator included. */
+#define VL_LOG_CHANNEL_MAX 64
+
+/** Default channel names, shared with the daemon and the log writers. */
+#define VL_CHANNEL_IMU "VISLAM_IMU"
+#define VL_CHANNEL_FEATURES "VISLAM_FEATURES"
+#define VL_CHANNEL_CALIBRATION "VISLAM_CALIB"
+
+/** Channels the reader decodes; NULL or empty members take the defaults. */
+typedef struct {
+    const char *imu;          /**< vislam.imu_t */
+    const char *features;     /**< vislam.stereo_frame_t */
+    const char *calibration;  /**< vislam.calibration_t */
+} vl_log_channels_t;
+
+/** What vl_log_reader_next produced. */
+typedef enum {
+    VL_LOG_EVENT_END = 0,          /**< No more events (end of file or an unreadable tail, see truncated). */
+    VL_LOG_EVENT_IMU = 1,          /**< ev->imu is valid. */
+    VL_LOG_EVENT_FRAME = 2,        /**< ev->frame is valid. */
+    VL_LOG_EVENT_CALIBRATION = 3,  /**< ev->calibration and ev->calibration_utime are valid. */
+    VL_LOG_EVENT_DECODE_ERROR = 4  /**< A payload on a known channel did not decode; ev->error says why. */
+} vl_log_event_kind_t;
+
+/** One decoded event. Large (holds a full frame): keep it static or on the heap. */
+typedef struct {
+    vl_log_event_kind_t kind;
+    int64_t event_number;            /**< LCM event number in the log */
+    int64_t log_utime;               /**< us, time the logger received the event */
+    char channel[VL_LOG_CHANNEL_MAX];/**< channel name (truncated if longer) */
+    vl_imu_sample_t imu;             /**< kind == VL_LOG_EVENT_IMU */
+    vl_stereo_frame_t frame;         /**< kind == VL_LOG_EVENT_FRAME */
+    vl_calibration_t calibration;    /**< kind == VL_LOG_EVENT_CALIBRATION */
+    int64_t calibration_utime;       /**< us, stamp of the calibration message */
+    char error[160];                 /**< kind == VL_LOG_EVENT_DECODE_ERROR: what went wrong */
+} vl_log_event_t;
+
+/** Counts since vl_log_reader_open. */
+typedef struct {
+    uint64_t events;         /**< events read from the file, every channel */
+    uint64_t imu;            /**< IMU events decoded */
+    uint64_t frames;         /**< frame events decoded */
+    uint64_t calibrations;   /**< calibration events decoded */
+    uint64_t decode_errors;  /**< events on known channels that failed to decode */
+    uint64_t skipped;        /**< events on other channels */
+} vl_log_reader_stats_t;
+
+/** Reader state; members are private. */
+typedef struct {
+    void *log;  /**< lcm_eventlog_t */
+    char imu_channel[VL_LOG_CHANNEL_MAX];
+    char features_channel[VL_LOG_CHANNEL_MAX];
+    char calibration_channel[VL_LOG_CHANNEL_MAX];
+    long file_size;      /**< bytes, or -1 if unknown */
+    int truncated;       /**< the log ended before its last byte (corrupt or cut tail) */
+    int ended;
+    vl_log_reader_stats_t stats;
+    /* Decoding storage: the message types are fixed-size, so decode never allocates. */
+    vislam_imu_t imu_msg;
+    vislam_stereo_frame_t frame_msg;
+    vislam_calibration_t calibration_msg;
+} vl_log_reader_t;
+
+/** Fills @p channels with the default names. */
+void vl_log_channels_default(vl_log_channels_t *channels);
+
+/**
+ * Opens @p path for reading.
+ * @param channels NULL for the defaults
+ * @return 0, or -1 (errno-style message in @p err) if the file cannot be opened
+ *         or a channel name is too long.
+ */
+int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channels_t *channels,
+                       char *err, size_t err_len);
+
+/**
+ * Reads the next event on a known channel, skipping others.
+ * @return the event kind (also stored in ev->kind); VL_LOG_EVENT_END forever once the log is done.
+ */
+vl_log_event_kind_t vl_log_reader_next(vl_log_reader_t *r, vl_log_event_t *ev);
+
+/** Counters since open. */
+const vl_log_reader_stats_t *vl_log_reader_stats(const vl_log_reader_t *r);
+
+/** Nonzero if reading stopped before the end of the file (a corrupt or cut event). */
+int vl_log_reader_truncated(const vl_log_reader_t *r);
+
+/** Closes the log; safe on a reader that failed to open or is already closed. */
+void vl_log_reader_close(vl_log_reader_t *r);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* VISLAM_PLATFORM_VL_LOG_READER_H */

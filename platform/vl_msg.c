@@ -1,0 +1,193 @@
+/* Conversions between LCM messages and core types. */
+#include "vl_msg.h"
+
+#include <math.h>
+#include <string.h>
+
+vl_msg_status_t vl_msg_to_imu(const vislam_imu_t *msg, vl_imu_sample_t *out)
+{
+    if (msg == NULL || out == NULL) {
+        return VL_MSG_ERR_NULL;
+    }
+    out->utime = msg->utime;
+    for (int i = 0; i < 3; ++i) {
+        out->linear_velocity[i] = msg->linear_velocity[i];
+        out->angular_velocity[i] = msg->angular_velocity[i];
+    }
+    return VL_MSG_OK;
+}
+
+vl_msg_status_t vl_msg_from_imu(const vl_imu_sample_t *imu, vislam_imu_t *out)
+{
+    if (imu == NULL || out == NULL) {
+        return VL_MSG_ERR_NULL;
+    }
+    out->utime = imu->utime;
+    for (int i = 0; i < 3; ++i) {
+        out->linear_velocity[i] = imu->linear_velocity[i];
+        out->angular_velocity[i] = imu->angular_velocity[i];
+    }
+    return VL_MSG_OK;
+}
+
+vl_msg_status_t vl_msg_to_stereo_frame(const vislam_stereo_frame_t *msg, vl_stereo_frame_t *out)
+{
+    if (msg == NULL || out == NULL) {
+        return VL_MSG_ERR_NULL;
+    }
+    vl_msg_status_t status = VL_MSG_OK;
+    int32_t n = msg->num_features;
+    if (n < 0) {
+        n = 0;
+        status = VL_MSG_ERR_COUNT;
+    } else if (n > VISLAM_STEREO_FRAME_T_MAX_FEATURES) {
+        n = VISLAM_STEREO_FRAME_T_MAX_FEATURES;
+        status = VL_MSG_ERR_COUNT;
+    }
+    out->utime = msg->utime;
+    /* Keep the full count even when the core holds fewer: the core counts the truncation. */
+    out->count = (uint32_t)n;
+    int32_t copy = n < VL_MAX_FRAME_FEATURES ? n : VL_MAX_FRAME_FEATURES;
+    for (int32_t i = 0; i < copy; ++i) {
+        out->obs[i].id = msg->id[i];
+        out->obs[i].u_left = msg->u_left[i];
+        out->obs[i].v_left = msg->v_left[i];
+        out->obs[i].u_right = msg->u_right[i];
+        out->obs[i].v_right = msg->v_right[i];
+    }
+    return status;
+}
+
+vl_msg_status_t vl_msg_from_stereo_frame(const vl_stereo_frame_t *frame, vislam_stereo_frame_t *out)
+{
+    if (frame == NULL || out == NULL) {
+        return VL_MSG_ERR_NULL;
+    }
+    vl_msg_status_t status = VL_MSG_OK;
+    uint32_t n = frame->count;
+    if (n > VL_MAX_FRAME_FEATURES) {
+        n = VL_MAX_FRAME_FEATURES;
+    }
+    if (n > VISLAM_STEREO_FRAME_T_MAX_FEATURES) {
+        n = VISLAM_STEREO_FRAME_T_MAX_FEATURES;
+    }
+    if (frame->count > n) {
+        status = VL_MSG_ERR_COUNT;
+    }
+    /* Zero the unused tail so encoded messages are reproducible byte for byte. */
+    memset(out, 0, sizeof(*out));
+    out->utime = frame->utime;
+    out->num_features = (int32_t)n;
+    for (uint32_t i = 0; i < n; ++i) {
+        out->id[i] = frame->obs[i].id;
+        out->u_left[i] = frame->obs[i].u_left;
+        out->v_left[i] = frame->obs[i].v_left;
+        out->u_right[i] = frame->obs[i].u_right;
+        out->v_right[i] = frame->obs[i].v_right;
+    }
+    return status;
+}
+
+vl_msg_status_t vl_msg_to_calibration(const vislam_calibration_t *msg, vl_calibration_t *out, int64_t *utime)
+{
+    if (msg == NULL || out == NULL) {
+        return VL_MSG_ERR_NULL;
+    }
+    out->fx = msg->fx;
+    out->fy = msg->fy;
+    out->cx = msg->cx;
+    out->cy = msg->cy;
+    out->baseline = msg->baseline;
+    memcpy(out->cam_T_imu, msg->cam_T_imu, sizeof(out->cam_T_imu));
+    if (utime != NULL) {
+        *utime = msg->utime;
+    }
+    return VL_MSG_OK;
+}
+
+vl_msg_status_t vl_msg_from_calibration(const vl_calibration_t *calib, int64_t utime, vislam_calibration_t *out)
+{
+    if (calib == NULL || out == NULL) {
+        return VL_MSG_ERR_NULL;
+    }
+    out->utime = utime;
+    out->fx = calib->fx;
+    out->fy = calib->fy;
+    out->cx = calib->cx;
+    out->cy = calib->cy;
+    out->baseline = calib->baseline;
+    memcpy(out->cam_T_imu, calib->cam_T_imu, sizeof(out->cam_T_imu));
+    return VL_MSG_OK;
+}
+
+void vl_msg_rotation_to_quaternion(const double R[9], double q[4])
+{
+    /* Shepperd: branch on the largest of w, x, y, z to avoid dividing by a small number. */
+    const double trace = R[0] + R[4] + R[8];
+    double w, x, y, z;
+    if (trace >= R[0] && trace >= R[4] && trace >= R[8]) {
+        const double s = 2.0 * sqrt(1.0 + trace);
+        w = 0.25 * s;
+        x = (R[7] - R[5]) / s;
+        y = (R[2] - R[6]) / s;
+        z = (R[3] - R[1]) / s;
+    } else if (R[0] >= R[4] && R[0] >= R[8]) {
+        const double s = 2.0 * sqrt(1.0 + R[0] - R[4] - R[8]);
+        w = (R[7] - R[5]) / s;
+        x = 0.25 * s;
+        y = (R[1] + R[3]) / s;
+        z = (R[2] + R[6]) / s;
+    } else if (R[4] >= R[8]) {
+        const double s = 2.0 * sqrt(1.0 + R[4] - R[0] - R[8]);
+        w = (R[2] - R[6]) / s;
+        x = (R[1] + R[3]) / s;
+        y = 0.25 * s;
+        z = (R[5] + R[7]) / s;
+    } else {
+        const double s = 2.0 * sqrt(1.0 + R[8] - R[0] - R[4]);
+        w = (R[3] - R[1]) / s;
+        x = (R[2] + R[6]) / s;
+        y = (R[5] + R[7]) / s;
+        z = 0.25 * s;
+    }
+    const double norm = sqrt(w * w + x * x + y * y + z * z);
+    const double sign = w < 0.0 ? -1.0 : 1.0;
+    q[0] = sign * w / norm;
+    q[1] = sign * x / norm;
+    q[2] = sign * y / norm;
+    q[3] = sign * z / norm;
+}
+
+vl_msg_status_t vl_msg_from_pose(const vl_pose_t *pose, int8_t source, int64_t sequence, vislam_pose_t *out)
+{
+    if (pose == NULL || out == NULL) {
+        return VL_MSG_ERR_NULL;
+    }
+    out->utime = pose->utime;
+    out->source = source;
+    out->sequence = sequence;
+    vl_msg_rotation_to_quaternion(pose->rotation, out->orientation);
+    for (int i = 0; i < 3; ++i) {
+        out->position[i] = pose->position[i];
+        out->linear_velocity[i] = pose->linear_velocity[i];
+        out->angular_velocity[i] = pose->angular_velocity[i];
+    }
+    memcpy(out->covariance, pose->covariance, sizeof(out->covariance));
+    return VL_MSG_OK;
+}
+
+vl_msg_status_t vl_msg_from_pose_bot(const vl_pose_t *pose, bot_core_pose_t *out)
+{
+    if (pose == NULL || out == NULL) {
+        return VL_MSG_ERR_NULL;
+    }
+    out->utime = pose->utime;
+    vl_msg_rotation_to_quaternion(pose->rotation, out->orientation);
+    for (int i = 0; i < 3; ++i) {
+        out->pos[i] = pose->position[i];
+        out->vel[i] = pose->linear_velocity[i];
+        out->rotation_rate[i] = pose->angular_velocity[i];
+        out->accel[i] = 0.0;
+    }
+    return VL_MSG_OK;
+}

@@ -1,0 +1,85 @@
+/**
+ * @file vl_msg.h
+ * @brief Conversions between the LCM message types and the core types.
+ *
+ * Pure functions: no I/O, no allocation. Shared by the offline runner and the
+ * daemon, so a log replayed offline and the same messages received live are
+ * turned into identical core inputs.
+ */
+#ifndef VISLAM_PLATFORM_VL_MSG_H
+#define VISLAM_PLATFORM_VL_MSG_H
+
+#include <stdint.h>
+
+#include "vislam/vislam.h"
+
+#include "bot_core_pose_t.h"
+#include "vislam_calibration_t.h"
+#include "vislam_imu_t.h"
+#include "vislam_pose_t.h"
+#include "vislam_stereo_frame_t.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/** Result of a message conversion. */
+typedef enum {
+    VL_MSG_OK = 0,              /**< Converted. */
+    VL_MSG_ERR_NULL = -1,       /**< A pointer argument was NULL. */
+    VL_MSG_ERR_COUNT = -2       /**< num_features outside 0..VISLAM_STEREO_FRAME_T_MAX_FEATURES
+                                     (the output was still filled, with the count clamped). */
+} vl_msg_status_t;
+
+/** Copies an IMU message into a core sample (values are not checked; the core rejects non-finite ones). */
+vl_msg_status_t vl_msg_to_imu(const vislam_imu_t *msg, vl_imu_sample_t *out);
+
+/** Copies a core IMU sample into a message (used by log writers and tests). */
+vl_msg_status_t vl_msg_from_imu(const vl_imu_sample_t *imu, vislam_imu_t *out);
+
+/**
+ * Copies a feature message into a core frame.
+ *
+ * A count outside 0..256 means the message is corrupt: the frame is filled
+ * with the count clamped into that range and VL_MSG_ERR_COUNT is returned, so
+ * the caller decides whether to drop it (the log reader and daemon do).
+ * If the core's VL_MAX_FRAME_FEATURES is smaller than the message's count,
+ * only the first entries are copied but `count` keeps the full number so the
+ * core counts the truncation.
+ */
+vl_msg_status_t vl_msg_to_stereo_frame(const vislam_stereo_frame_t *msg, vl_stereo_frame_t *out);
+
+/** Copies a core frame into a message; more than 256 observations gives VL_MSG_ERR_COUNT (first 256 kept). */
+vl_msg_status_t vl_msg_from_stereo_frame(const vl_stereo_frame_t *frame, vislam_stereo_frame_t *out);
+
+/** Copies a calibration message into the core type; @p utime may be NULL. */
+vl_msg_status_t vl_msg_to_calibration(const vislam_calibration_t *msg, vl_calibration_t *out, int64_t *utime);
+
+/** Copies a core calibration into a message stamped @p utime (us). */
+vl_msg_status_t vl_msg_from_calibration(const vl_calibration_t *calib, int64_t utime, vislam_calibration_t *out);
+
+/**
+ * Converts a row-major rotation matrix to a unit quaternion (w, x, y, z)
+ * with w >= 0, so equal rotations always print equal.
+ */
+void vl_msg_rotation_to_quaternion(const double R[9], double q_wxyz[4]);
+
+/**
+ * Fills a vislam pose message.
+ * @param source   VISLAM_POSE_T_SOURCE_IMU or VISLAM_POSE_T_SOURCE_FEATURES
+ * @param sequence poses published before this one
+ */
+vl_msg_status_t vl_msg_from_pose(const vl_pose_t *pose, int8_t source, int64_t sequence, vislam_pose_t *out);
+
+/**
+ * Fills a libbot2-compatible pose: position in the world, orientation
+ * (w, x, y, z) world-from-body, vel and rotation_rate in the body frame
+ * (the offset-corrected inputs), accel zero (not estimated).
+ */
+vl_msg_status_t vl_msg_from_pose_bot(const vl_pose_t *pose, bot_core_pose_t *out);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* VISLAM_PLATFORM_VL_MSG_H */

@@ -1,0 +1,399 @@
+/* Tests of the INI configuration loader (platform/vl_config_file). */
+#define _POSIX_C_SOURCE 200809L
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "unity.h"
+#include "vl_config_file.h"
+
+static char g_path[64];
+static char g_err[512];
+
+void setUp(void)
+{
+    g_path[0] = '\0';
+    g_err[0] = '\0';
+}
+
+void tearDown(void)
+{
+    if (g_path[0] != '\0') {
+        unlink(g_path);
+    }
+}
+
+/* Writes text to a fresh temporary file whose name goes to g_path. */
+static const char *write_temp(const char *text)
+{
+    if (g_path[0] != '\0') {
+        unlink(g_path);
+    }
+    snprintf(g_path, sizeof(g_path), "/tmp/vl_test_cfg_XXXXXX");
+    int fd = mkstemp(g_path);
+    TEST_ASSERT_TRUE_MESSAGE(fd >= 0, "mkstemp failed");
+    FILE *f = fdopen(fd, "w");
+    TEST_ASSERT_NOT_NULL(f);
+    TEST_ASSERT_EQUAL_INT((int)strlen(text), (int)fwrite(text, 1, strlen(text), f));
+    TEST_ASSERT_EQUAL_INT(0, fclose(f));
+    return g_path;
+}
+
+/* Field by field: memcmp would also compare padding. */
+static void assert_config_equal(const vl_config_t *a, const vl_config_t *b)
+{
+    TEST_ASSERT_EQUAL_INT(a->mode, b->mode);
+    TEST_ASSERT_EQUAL_INT(a->estimate_input_offsets, b->estimate_input_offsets);
+    TEST_ASSERT_EQUAL_DOUBLE(a->linear_velocity_noise, b->linear_velocity_noise);
+    TEST_ASSERT_EQUAL_DOUBLE(a->angular_velocity_noise, b->angular_velocity_noise);
+    TEST_ASSERT_EQUAL_DOUBLE(a->linear_offset_prior, b->linear_offset_prior);
+    TEST_ASSERT_EQUAL_DOUBLE(a->angular_offset_prior, b->angular_offset_prior);
+    TEST_ASSERT_EQUAL_DOUBLE(a->linear_offset_walk, b->linear_offset_walk);
+    TEST_ASSERT_EQUAL_DOUBLE(a->angular_offset_walk, b->angular_offset_walk);
+    TEST_ASSERT_EQUAL_DOUBLE(a->pixel_noise, b->pixel_noise);
+    TEST_ASSERT_EQUAL_DOUBLE(a->min_disparity, b->min_disparity);
+    TEST_ASSERT_EQUAL_DOUBLE(a->max_depth, b->max_depth);
+    TEST_ASSERT_EQUAL_DOUBLE(a->gate_chi2, b->gate_chi2);
+    TEST_ASSERT_EQUAL_DOUBLE(a->max_broken_fraction, b->max_broken_fraction);
+    TEST_ASSERT_EQUAL_UINT32(a->ransac_hypotheses, b->ransac_hypotheses);
+    TEST_ASSERT_EQUAL_DOUBLE(a->ransac_threshold, b->ransac_threshold);
+    TEST_ASSERT_EQUAL_UINT32(a->min_track_length, b->min_track_length);
+    TEST_ASSERT_EQUAL_UINT32(a->max_landmarks, b->max_landmarks);
+    TEST_ASSERT_EQUAL_UINT32(a->max_unseen_frames, b->max_unseen_frames);
+    TEST_ASSERT_EQUAL_DOUBLE(a->max_propagation_dt, b->max_propagation_dt);
+    TEST_ASSERT_EQUAL_DOUBLE(a->calibration.fx, b->calibration.fx);
+    TEST_ASSERT_EQUAL_DOUBLE(a->calibration.fy, b->calibration.fy);
+    TEST_ASSERT_EQUAL_DOUBLE(a->calibration.cx, b->calibration.cx);
+    TEST_ASSERT_EQUAL_DOUBLE(a->calibration.cy, b->calibration.cy);
+    TEST_ASSERT_EQUAL_DOUBLE(a->calibration.baseline, b->calibration.baseline);
+    TEST_ASSERT_EQUAL_DOUBLE_ARRAY(a->calibration.cam_T_imu, b->calibration.cam_T_imu, 16);
+    TEST_ASSERT_EQUAL_PTR(a->landmark_sink, b->landmark_sink);
+    TEST_ASSERT_EQUAL_PTR(a->landmark_sink_user, b->landmark_sink_user);
+    TEST_ASSERT_EQUAL_PTR(a->log, b->log);
+    TEST_ASSERT_EQUAL_PTR(a->log_user, b->log_user);
+}
+
+/* Loads text on top of the defaults and expects a failure whose message holds every needle. */
+static void expect_error(const char *text, const char *needle1, const char *needle2)
+{
+    vl_config_t cfg;
+    vl_config_default(&cfg);
+    vl_config_t before = cfg;
+    vl_status_t s = vl_config_load_ini(write_temp(text), &cfg, g_err, sizeof(g_err));
+    TEST_ASSERT_EQUAL_INT_MESSAGE(VL_ERR_CONFIG, s, g_err);
+    TEST_ASSERT_TRUE_MESSAGE(strstr(g_err, g_path) != NULL, g_err);
+    if (needle1 != NULL) {
+        TEST_ASSERT_TRUE_MESSAGE(strstr(g_err, needle1) != NULL, g_err);
+    }
+    if (needle2 != NULL) {
+        TEST_ASSERT_TRUE_MESSAGE(strstr(g_err, needle2) != NULL, g_err);
+    }
+    assert_config_equal(&before, &cfg); /* untouched on failure */
+}
+
+static const char *k_full =
+    "; every key, none at its default\n"
+    "[estimator]\n"
+    "mode = mapping\n"
+    "estimate_input_offsets = false\n"
+    "max_propagation_dt = 0.25\n"
+    "\n"
+    "[noise]\n"
+    "linear_velocity = 0.7\n"
+    "angular_velocity = 0.07   ; inline comment\n"
+    "linear_offset_prior = 0.2\n"
+    "angular_offset_prior = 0.02\n"
+    "linear_offset_walk = 2e-3\n"
+    "angular_offset_walk = 2e-4\n"
+    "pixel = 2.5\n"
+    "\n"
+    "# hash comments too\n"
+    "[landmarks]\n"
+    "max_landmarks = 17\n"
+    "max_unseen_frames = 3\n"
+    "min_disparity = 0.5\n"
+    "max_depth = 80\n"
+    "min_track_length = 3\n"
+    "\n"
+    "[outliers]\n"
+    "gate_chi2 = 9.5\n"
+    "max_broken_fraction = 0.45\n"
+    "ransac_hypotheses = 12\n"
+    "ransac_threshold = 2.5\n"
+    "\n"
+    "[calibration]\n"
+    "override_log = true\n"
+    "fx = 721.5\n"
+    "fy = 721.6\n"
+    "cx = 609.5\n"
+    "cy = 172.8\n"
+    "baseline = 0.537\n"
+    "cam_T_imu = 0 -1 0 0.1,\n"
+    "            0 0 -1 0.2,\n"
+    "            1 0 0 0.3,\n"
+    "            0 0 0 1\n";
+
+void test_vl_config_load_ini_full_file_sets_every_key(void)
+{
+    vl_config_t cfg;
+    vl_config_default(&cfg);
+    vl_config_file_info_t info;
+    vl_status_t s = vl_config_load_ini_ex(write_temp(k_full), &cfg, &info, g_err, sizeof(g_err));
+    TEST_ASSERT_EQUAL_INT_MESSAGE(VL_OK, s, g_err);
+    TEST_ASSERT_EQUAL_INT(VL_MODE_MAPPING, cfg.mode);
+    TEST_ASSERT_EQUAL_INT(0, cfg.estimate_input_offsets);
+    TEST_ASSERT_EQUAL_DOUBLE(0.25, cfg.max_propagation_dt);
+    TEST_ASSERT_EQUAL_DOUBLE(0.7, cfg.linear_velocity_noise);
+    TEST_ASSERT_EQUAL_DOUBLE(0.07, cfg.angular_velocity_noise);
+    TEST_ASSERT_EQUAL_DOUBLE(0.2, cfg.linear_offset_prior);
+    TEST_ASSERT_EQUAL_DOUBLE(0.02, cfg.angular_offset_prior);
+    TEST_ASSERT_EQUAL_DOUBLE(2e-3, cfg.linear_offset_walk);
+    TEST_ASSERT_EQUAL_DOUBLE(2e-4, cfg.angular_offset_walk);
+    TEST_ASSERT_EQUAL_DOUBLE(2.5, cfg.pixel_noise);
+    TEST_ASSERT_EQUAL_UINT32(17, cfg.max_landmarks);
+    TEST_ASSERT_EQUAL_UINT32(3, cfg.max_unseen_frames);
+    TEST_ASSERT_EQUAL_DOUBLE(0.5, cfg.min_disparity);
+    TEST_ASSERT_EQUAL_DOUBLE(80.0, cfg.max_depth);
+    TEST_ASSERT_EQUAL_UINT32(3, cfg.min_track_length);
+    TEST_ASSERT_EQUAL_DOUBLE(9.5, cfg.gate_chi2);
+    TEST_ASSERT_EQUAL_DOUBLE(0.45, cfg.max_broken_fraction);
+    TEST_ASSERT_EQUAL_UINT32(12, cfg.ransac_hypotheses);
+    TEST_ASSERT_EQUAL_DOUBLE(2.5, cfg.ransac_threshold);
+    TEST_ASSERT_EQUAL_DOUBLE(721.5, cfg.calibration.fx);
+    TEST_ASSERT_EQUAL_DOUBLE(721.6, cfg.calibration.fy);
+    TEST_ASSERT_EQUAL_DOUBLE(609.5, cfg.calibration.cx);
+    TEST_ASSERT_EQUAL_DOUBLE(172.8, cfg.calibration.cy);
+    TEST_ASSERT_EQUAL_DOUBLE(0.537, cfg.calibration.baseline);
+    const double T[16] = {0, -1, 0, 0.1, 0, 0, -1, 0.2, 1, 0, 0, 0.3, 0, 0, 0, 1};
+    TEST_ASSERT_EQUAL_DOUBLE_ARRAY(T, cfg.calibration.cam_T_imu, 16);
+    TEST_ASSERT_TRUE(info.has_calibration);
+    TEST_ASSERT_TRUE(info.override_log);
+    TEST_ASSERT_EQUAL_INT(VL_PRESET_NONE, info.preset);
+    TEST_ASSERT_EQUAL_UINT(26, info.keys_set); /* all but preset */
+}
+
+void test_vl_config_load_ini_example_file_equals_defaults(void)
+{
+    char path[1024];
+    if (VL_MAX_LANDMARKS != 128) {
+        TEST_IGNORE_MESSAGE("tools/vislam.ini sets max_landmarks = 128, the default capacity; this build differs");
+    }
+    snprintf(path, sizeof(path), "%s/tools/vislam.ini", VL_SOURCE_DIR);
+    vl_config_t def;
+    vl_config_default(&def);
+    vl_config_t cfg = def;
+    vl_config_file_info_t info;
+    vl_status_t s = vl_config_load_ini_ex(path, &cfg, &info, g_err, sizeof(g_err));
+    TEST_ASSERT_EQUAL_INT_MESSAGE(VL_OK, s, g_err);
+    TEST_ASSERT_FALSE(info.has_calibration);
+    assert_config_equal(&def, &cfg);
+}
+
+void test_vl_config_load_ini_without_calibration_keeps_callers_rig(void)
+{
+    vl_config_t cfg;
+    vl_config_default(&cfg);
+    vl_config_file_info_t info;
+    vl_status_t s = vl_config_load_ini_ex(write_temp("[noise]\npixel = 3\n"), &cfg, &info, g_err, sizeof(g_err));
+    TEST_ASSERT_EQUAL_INT_MESSAGE(VL_OK, s, g_err);
+    TEST_ASSERT_EQUAL_DOUBLE(3.0, cfg.pixel_noise);
+    TEST_ASSERT_FALSE(info.has_calibration);
+    TEST_ASSERT_EQUAL_DOUBLE(0.0, cfg.calibration.fx); /* still the default: the log supplies it */
+}
+
+void test_vl_config_load_ini_preset_is_applied_before_other_keys(void)
+{
+    vl_config_t seed;
+    vl_config_preset_seed(&seed);
+    vl_config_t cfg;
+    vl_config_default(&cfg);
+    cfg.log_user = &cfg; /* callbacks survive a preset */
+    vl_config_file_info_t info;
+    /* preset after a key: the key still wins */
+    vl_status_t s = vl_config_load_ini_ex(write_temp("[noise]\npixel = 9\n[estimator]\npreset = seed\n"), &cfg, &info,
+                                          g_err, sizeof(g_err));
+    TEST_ASSERT_EQUAL_INT_MESSAGE(VL_OK, s, g_err);
+    TEST_ASSERT_EQUAL_INT(VL_PRESET_SEED, info.preset);
+    TEST_ASSERT_EQUAL_DOUBLE(9.0, cfg.pixel_noise);
+    TEST_ASSERT_EQUAL_DOUBLE(seed.linear_velocity_noise, cfg.linear_velocity_noise);
+    TEST_ASSERT_EQUAL_UINT32(seed.ransac_hypotheses, cfg.ransac_hypotheses);
+    TEST_ASSERT_EQUAL_PTR(&cfg, cfg.log_user);
+}
+
+void test_vl_config_load_ini_unknown_key_names_file_line_key(void)
+{
+    expect_error("[noise]\npixel = 2\npixle = 2\n", ":3:", "pixle");
+    TEST_ASSERT_NOT_NULL(strstr(g_err, "unknown key"));
+}
+
+void test_vl_config_load_ini_unknown_section_fails(void)
+{
+    expect_error("[estimator]\nmode = slam\n[filter]\nmode = slam\n", ":4:", "[filter]");
+}
+
+void test_vl_config_load_ini_key_outside_section_fails(void)
+{
+    expect_error("pixel = 2\n", ":1:", "pixel");
+}
+
+void test_vl_config_load_ini_bad_number_fails(void)
+{
+    expect_error("[noise]\npixel = 1.5px\n", ":2:", "'1.5px'");
+    expect_error("[noise]\npixel =\n", ":2:", "pixel");
+    expect_error("[noise]\npixel = nan\n", ":2:", "not a finite number");
+    expect_error("[noise]\npixel = inf\n", ":2:", "not a finite number");
+    expect_error("[noise]\npixel = 1e999\n", ":2:", "pixel");
+    expect_error("[landmarks]\nmax_landmarks = 12.5\n", ":2:", "not an integer");
+    expect_error("[estimator]\nestimate_input_offsets = yes\n", ":2:", "true or false");
+    expect_error("[estimator]\nmode = full\n", ":2:", "mode");
+    expect_error("[outliers]\nransac_hypotheses = many\n", ":2:", "ransac_hypotheses");
+    expect_error("[estimator]\npreset = fancy\n", ":2:", "preset");
+}
+
+void test_vl_config_load_ini_out_of_range_fails(void)
+{
+    expect_error("[noise]\n\npixel = -1\n", ":3:", "out of range");
+    expect_error("[noise]\nlinear_velocity = 0\n", ":2:", "linear_velocity");
+    expect_error("[noise]\nlinear_offset_walk = -1e-3\n", ":2:", "linear_offset_walk");
+    expect_error("[landmarks]\nmax_landmarks = 0\n", ":2:", "max_landmarks");
+    char text[128];
+    snprintf(text, sizeof(text), "[landmarks]\nmax_landmarks = %d\n", VL_MAX_LANDMARKS + 1);
+    expect_error(text, ":2:", "out of range");
+    expect_error("[landmarks]\nmax_unseen_frames = -1\n", ":2:", "max_unseen_frames");
+    expect_error("[landmarks]\nmin_disparity = 0\n", ":2:", "min_disparity");
+    expect_error("[estimator]\nmax_propagation_dt = 0\n", ":2:", "max_propagation_dt");
+    expect_error("[outliers]\nmax_broken_fraction = 1.5\n", ":2:", "max_broken_fraction");
+    expect_error("[landmarks]\nmin_track_length = 0\n", ":2:", "min_track_length");
+}
+
+void test_vl_config_load_ini_repeated_key_fails(void)
+{
+    expect_error("[noise]\npixel = 2\n[noise]\npixel = 3\n", ":4:", "first on line 2");
+}
+
+void test_vl_config_load_ini_continuation_of_scalar_fails(void)
+{
+    expect_error("[noise]\npixel = 2\n  3\n", ":3:", "continuation");
+}
+
+void test_vl_config_load_ini_syntax_error_names_line(void)
+{
+    expect_error("[noise]\npixel 2\n", ":2:", "syntax");
+}
+
+void test_vl_config_load_ini_missing_file_fails(void)
+{
+    vl_config_t cfg;
+    vl_config_default(&cfg);
+    vl_status_t s = vl_config_load_ini("/tmp/vl_test_no_such_dir/none.ini", &cfg, g_err, sizeof(g_err));
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, s);
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(g_err, "/tmp/vl_test_no_such_dir/none.ini"), g_err);
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(g_err, "cannot open"), g_err);
+}
+
+void test_vl_config_load_ini_null_arguments_fail(void)
+{
+    vl_config_t cfg;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_config_load_ini(NULL, &cfg, g_err, sizeof(g_err)));
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_config_load_ini("/tmp/x.ini", NULL, NULL, 0));
+}
+
+void test_vl_config_load_ini_incomplete_calibration_fails(void)
+{
+    expect_error("[calibration]\nfx = 700\nfy = 700\n", "incomplete", "cx");
+}
+
+void test_vl_config_load_ini_override_without_calibration_fails(void)
+{
+    expect_error("[calibration]\noverride_log = true\n", ":2:", "override_log");
+}
+
+void test_vl_config_load_ini_bad_cam_T_imu_fails(void)
+{
+    const char *head = "[calibration]\nfx = 700\nfy = 700\ncx = 600\ncy = 170\nbaseline = 0.5\n";
+    char text[512];
+    snprintf(text, sizeof(text), "%scam_T_imu = 1 0 0 0 0 1 0 0 0 0 1 0 0 0 0\n", head);
+    expect_error(text, ":7:", "15 numbers");
+    snprintf(text, sizeof(text), "%scam_T_imu = 1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1 0\n", head);
+    expect_error(text, ":7:", "more than 16");
+    snprintf(text, sizeof(text), "%scam_T_imu = 2 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n", head);
+    expect_error(text, ":7:", "rigid");
+    snprintf(text, sizeof(text), "%scam_T_imu = 1 0 0 0 0 1 0 0 0 0 -1 0 0 0 0 1\n", head);
+    expect_error(text, ":7:", "rigid");
+    snprintf(text, sizeof(text), "%scam_T_imu = 1 0 0 0 0 1 0 0 0 0 1 x 0 0 0 1\n", head);
+    expect_error(text, ":7:", "'x'");
+}
+
+void test_vl_config_load_ini_overlong_line_fails(void)
+{
+    char text[600];
+    int n = snprintf(text, sizeof(text), "[noise]\npixel = 2 ;");
+    memset(text + n, 'x', 300);
+    snprintf(text + n + 300, sizeof(text) - (size_t)n - 300, "\n[noise]\n");
+    expect_error(text, ":2:", "too long");
+}
+
+void test_vl_config_write_ini_round_trips(void)
+{
+    vl_config_t cfg;
+    vl_config_default(&cfg);
+    TEST_ASSERT_EQUAL_INT_MESSAGE(VL_OK, vl_config_load_ini(write_temp(k_full), &cfg, g_err, sizeof(g_err)), g_err);
+    cfg.pixel_noise = 1.0 / 3.0; /* needs all 17 digits */
+    unlink(g_path);
+
+    snprintf(g_path, sizeof(g_path), "/tmp/vl_test_cfg_XXXXXX");
+    int fd = mkstemp(g_path);
+    TEST_ASSERT_TRUE(fd >= 0);
+    FILE *f = fdopen(fd, "w");
+    TEST_ASSERT_NOT_NULL(f);
+    TEST_ASSERT_EQUAL_INT(0, vl_config_write_ini(f, &cfg, 1));
+    TEST_ASSERT_EQUAL_INT(0, fclose(f));
+
+    vl_config_t back;
+    vl_config_default(&back);
+    vl_config_file_info_t info;
+    TEST_ASSERT_EQUAL_INT_MESSAGE(VL_OK, vl_config_load_ini_ex(g_path, &back, &info, g_err, sizeof(g_err)), g_err);
+    TEST_ASSERT_TRUE(info.has_calibration);
+    assert_config_equal(&cfg, &back);
+}
+
+void test_vl_mode_names_round_trip(void)
+{
+    const vl_mode_t modes[3] = {VL_MODE_IMU_ONLY, VL_MODE_MAPPING, VL_MODE_SLAM};
+    for (int i = 0; i < 3; ++i) {
+        vl_mode_t m;
+        TEST_ASSERT_EQUAL_INT(0, vl_mode_from_name(vl_mode_name(modes[i]), &m));
+        TEST_ASSERT_EQUAL_INT(modes[i], m);
+    }
+    vl_mode_t m;
+    TEST_ASSERT_EQUAL_INT(-1, vl_mode_from_name("SLAM", &m));
+    TEST_ASSERT_EQUAL_STRING("seed", vl_preset_name(VL_PRESET_SEED));
+}
+
+int main(void)
+{
+    UNITY_BEGIN();
+    RUN_TEST(test_vl_config_load_ini_full_file_sets_every_key);
+    RUN_TEST(test_vl_config_load_ini_example_file_equals_defaults);
+    RUN_TEST(test_vl_config_load_ini_without_calibration_keeps_callers_rig);
+    RUN_TEST(test_vl_config_load_ini_preset_is_applied_before_other_keys);
+    RUN_TEST(test_vl_config_load_ini_unknown_key_names_file_line_key);
+    RUN_TEST(test_vl_config_load_ini_unknown_section_fails);
+    RUN_TEST(test_vl_config_load_ini_key_outside_section_fails);
+    RUN_TEST(test_vl_config_load_ini_bad_number_fails);
+    RUN_TEST(test_vl_config_load_ini_out_of_range_fails);
+    RUN_TEST(test_vl_config_load_ini_repeated_key_fails);
+    RUN_TEST(test_vl_config_load_ini_continuation_of_scalar_fails);
+    RUN_TEST(test_vl_config_load_ini_syntax_error_names_line);
+    RUN_TEST(test_vl_config_load_ini_missing_file_fails);
+    RUN_TEST(test_vl_config_load_ini_null_arguments_fail);
+    RUN_TEST(test_vl_config_load_ini_incomplete_calibration_fails);
+    RUN_TEST(test_vl_config_load_ini_override_without_calibration_fails);
+    RUN_TEST(test_vl_config_load_ini_bad_cam_T_imu_fails);
+    RUN_TEST(test_vl_config_load_ini_overlong_line_fails);
+    RUN_TEST(test_vl_config_write_ini_round_trips);
+    RUN_TEST(test_vl_mode_names_round_trip);
+    return UNITY_END();
+}
