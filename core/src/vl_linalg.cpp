@@ -20,6 +20,88 @@ using Mat12 = Eigen::Matrix<double, 12, 12, Eigen::RowMajor>;
 using Mat36 = Eigen::Matrix<double, 3, 6, Eigen::RowMajor>;
 using Mat33 = Eigen::Matrix<double, 3, 3, Eigen::RowMajor>;
 
+/*
+ * Panel width of the blocked factorization, solve and downdate below. Eigen's
+ * own large LLT, TRSM and SYRK size a packing buffer by the whole matrix
+ * dimension, which past 128 KiB comes from the heap; built from products and
+ * small solves on panels this wide, every buffer stays bounded and on the stack.
+ */
+constexpr Eigen::Index kPanel = 32;
+/* Slab of one product: Eigen packs at most kProductDepth x kProductRows (and
+ * x kPanel) doubles, 64 KiB, well under its 128 KiB stack limit, whatever the
+ * landmark capacity. */
+constexpr Eigen::Index kProductRows = 32;
+constexpr Eigen::Index kProductDepth = 256;
+using SmallBlock = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kPanel, kPanel>;
+
+/* C -= A B^T in slabs of kProductRows rows and kProductDepth columns of depth
+ * (B has at most kPanel rows). */
+template <typename DstT, typename LhsT, typename RhsT>
+void subtract_product_bt(DstT &&C, const LhsT &A, const RhsT &B)
+{
+    const Eigen::Index rows = C.rows();
+    const Eigen::Index depth = A.cols();
+    for (Eigen::Index r = 0; r < rows; r += kProductRows) {
+        const Eigen::Index h = (rows - r < kProductRows) ? rows - r : kProductRows;
+        for (Eigen::Index d = 0; d < depth; d += kProductDepth) {
+            const Eigen::Index w = (depth - d < kProductDepth) ? depth - d : kProductDepth;
+            C.middleRows(r, h).noalias() -= A.block(r, d, h, w) * B.middleCols(d, w).transpose();
+        }
+    }
+}
+
+/* In-place lower Cholesky factor of the SPD matrix S (lower triangle read); false if not PD. */
+bool cholesky_in_place(DenseMap &S)
+{
+    const Eigen::Index m = S.rows();
+    for (Eigen::Index k = 0; k < m; k += kPanel) {
+        const Eigen::Index b = (m - k < kPanel) ? m - k : kPanel;
+        const Eigen::Index below = m - k - b;
+        if (k > 0) {
+            subtract_product_bt(S.block(k, k, b, b), S.block(k, 0, b, k), S.block(k, 0, b, k));
+            if (below > 0) {
+                subtract_product_bt(S.block(k + b, k, below, b), S.block(k + b, 0, below, k), S.block(k, 0, b, k));
+            }
+        }
+        SmallBlock diag = S.block(k, k, b, b);
+        Eigen::LLT<Eigen::Ref<SmallBlock>> llt(diag);
+        if (llt.info() != Eigen::Success) {
+            return false;
+        }
+        S.block(k, k, b, b) = diag;
+        if (below > 0) {
+            auto panel = S.block(k + b, k, below, b);
+            diag.triangularView<Eigen::Lower>().transpose().solveInPlace<Eigen::OnTheRight>(panel);
+        }
+    }
+    return true;
+}
+
+/* W <- W L^-T for the lower factor L held in S, one panel of columns at a time. */
+void solve_right_lower_transpose(const DenseMap &S, DenseMap &W)
+{
+    const Eigen::Index m = S.rows();
+    for (Eigen::Index k = 0; k < m; k += kPanel) {
+        const Eigen::Index b = (m - k < kPanel) ? m - k : kPanel;
+        auto panel = W.middleCols(k, b);
+        if (k > 0) {
+            subtract_product_bt(panel, W.leftCols(k), S.block(k, 0, b, k));
+        }
+        const SmallBlock diag = S.block(k, k, b, b);
+        diag.triangularView<Eigen::Lower>().transpose().solveInPlace<Eigen::OnTheRight>(panel);
+    }
+}
+
+/* Lower triangle of P -= W W^T, one panel of columns at a time. */
+void downdate_lower(MatMap &P, const DenseMap &W)
+{
+    const Eigen::Index n = P.rows();
+    for (Eigen::Index j = 0; j < n; j += kPanel) {
+        const Eigen::Index b = (n - j < kPanel) ? n - j : kPanel;
+        subtract_product_bt(P.block(j, j, n - j, b), W.middleRows(j, n - j), W.middleRows(j, b));
+    }
+}
+
 /* In the checked build every entry point forbids heap use for its whole body. */
 struct no_heap_scope {
 #ifdef EIGEN_RUNTIME_NO_MALLOC
@@ -158,24 +240,21 @@ extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs,
         S.diagonal().segment<3>(3 * i) += Eigen::Map<const Eigen::Vector3d>(obs[i].noise_var);
     }
 
-    Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(S);
-    if (llt.info() != Eigen::Success) {
+    if (!cholesky_in_place(S)) {
         return -1;
     }
-    const auto L = S.triangularView<Eigen::Lower>();
 
     /* Whitened innovation e = L^-1 r; the correction is dx = W e with W = P H^T L^-T. */
     Eigen::Matrix<double, Eigen::Dynamic, 1, 0, 3 * VL_MAX_LANDMARKS, 1> e(m);
     for (int i = 0; i < k; ++i) {
         e.segment<3>(3 * i) = Eigen::Map<const Eigen::Vector3d>(obs[i].residual);
     }
-    L.solveInPlace(e);
-    L.transpose().solveInPlace<Eigen::OnTheRight>(PHt);
+    S.triangularView<Eigen::Lower>().solveInPlace(e);
+    solve_right_lower_transpose(S, PHt);
     dx.noalias() = PHt * e;
 
-    /* P - W W^T, computed on the lower triangle as one symmetric rank-m update
-     * and mirrored, so P stays exactly symmetric. */
-    P.selfadjointView<Eigen::Lower>().rankUpdate(PHt, -1.0);
+    /* P - W W^T on the lower triangle, then mirrored, so P stays exactly symmetric. */
+    downdate_lower(P, PHt);
     mirror_lower_to_upper(P);
     return 0;
 }

@@ -20,6 +20,7 @@
 #include "vl_config_file.h"
 #include "vl_log_reader.h"
 #include "vl_msg.h"
+#include "vl_trajectory_file.h"
 
 #define EXIT_USAGE 2
 
@@ -328,26 +329,6 @@ static timing_summary_t summarize(samples_t *s)
 
 /* ---- outputs ---- */
 
-/* utime printed exactly as seconds with 6 decimals, without going through a double. */
-static void format_seconds(char *buf, size_t len, int64_t utime)
-{
-    const char *sign = utime < 0 ? "-" : "";
-    uint64_t mag = utime < 0 ? (uint64_t)0 - (uint64_t)utime : (uint64_t)utime;
-    snprintf(buf, len, "%s%llu.%06llu", sign, (unsigned long long)(mag / 1000000u),
-             (unsigned long long)(mag % 1000000u));
-}
-
-static void write_tum_line(FILE *f, int64_t utime, const vl_pose_t *pose)
-{
-    double q[4];
-    char t[32];
-    /* The daemon's conversion, so both tools print the same quaternion for a pose. */
-    vl_msg_rotation_to_quaternion(pose->rotation, q);
-    format_seconds(t, sizeof(t), utime);
-    fprintf(f, "%s %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", t, pose->position[0], pose->position[1],
-            pose->position[2], q[1], q[2], q[3], q[0]);
-}
-
 static int write_ply(const char *path, const map_t *m)
 {
     FILE *f = fopen(path, "w");
@@ -611,9 +592,10 @@ int main(int argc, char **argv)
         free(est);
         return 1;
     }
-    FILE *traj = fopen(o.trajectory_path, "w");
-    if (traj == NULL) {
-        fprintf(stderr, "vislam-run: cannot write trajectory %s: %s\n", o.trajectory_path, strerror(errno));
+    /* The writer vislamd uses too, so both programs print identical lines. */
+    static vl_trajectory_file_t traj;
+    if (vl_trajectory_open(&traj, o.trajectory_path, err, sizeof(err)) != 0) {
+        fprintf(stderr, "vislam-run: %s\n", err);
         vl_log_reader_close(&reader);
         free(est);
         return 1;
@@ -627,7 +609,7 @@ int main(int argc, char **argv)
            that arrives before any input replaces it. */
         if (vl_init(est, &cfg) != VL_OK) {
             fprintf(stderr, "vislam-run: vl_init refused the configuration\n");
-            fclose(traj);
+            vl_trajectory_close(&traj);
             vl_log_reader_close(&reader);
             free(est);
             return EXIT_USAGE;
@@ -711,7 +693,7 @@ int main(int argc, char **argv)
             if (s == VL_OK || s == VL_FRAME_TRUNCATED) {
                 vl_pose_t pose;
                 if (vl_get_pose(est, &pose) == VL_OK) {
-                    write_tum_line(traj, ev.frame.utime, &pose);
+                    vl_trajectory_write(&traj, ev.frame.utime, &pose);
                     run.trajectory_lines++;
                 }
             }
@@ -733,8 +715,7 @@ int main(int argc, char **argv)
     }
 
     int io_error = 0;
-    int bad = ferror(traj);
-    if (fclose(traj) != 0 || bad) {
+    if (vl_trajectory_close(&traj) != 0) {
         fprintf(stderr, "vislam-run: write error on trajectory %s\n", o.trajectory_path);
         io_error = 1;
     }

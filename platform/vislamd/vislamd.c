@@ -1,0 +1,913 @@
+/*
+ * vislamd: the estimator as a real-time LCM daemon.
+ *
+ * Inputs: VISLAM_IMU (vislam.imu_t), VISLAM_FEATURES (vislam.stereo_frame_t),
+ * VISLAM_CALIB (vislam.calibration_t). Outputs after every step: VISLAM_POSE
+ * (vislam.pose_t) and POSE (bot_core.pose_t); VISLAM_STATUS (vislam.status_t)
+ * once a second and at exit; optionally a TUM trajectory, one line per frame,
+ * the same lines vislam-run writes.
+ *
+ * Real time: after start-up the message loop does not allocate. Messages are
+ * received through lcm_subscribe's raw handler and decoded into static storage
+ * (the message types are fixed-size), poses are encoded into static buffers and
+ * sent with lcm_publish, and every step is timed with CLOCK_MONOTONIC into
+ * fixed-memory histograms. Whether that holds, LCM included, is measured when
+ * an allocation counter exposing vl_alloc_count() is preloaded (tests/support).
+ *
+ * Calibration handling follows vislam-run exactly (the config file's
+ * [calibration] first, replaced by the log's message unless override_log, a
+ * different calibration after inputs is ignored), so a lockstep replay gives
+ * the same trajectory as the offline run.
+ */
+#define _GNU_SOURCE /* RTLD_DEFAULT */
+
+#include <dlfcn.h>
+#include <errno.h>
+#include <inttypes.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <lcm/lcm.h>
+
+#include "vislam/vislam.h"
+#include "vl_clock.h"
+#include "vl_config_file.h"
+#include "vl_latency.h"
+#include "vl_log_reader.h"
+#include "vl_msg.h"
+#include "vl_rt.h"
+#include "vl_signal.h"
+#include "vl_trajectory_file.h"
+
+#include "bot_core_pose_t.h"
+#include "vislam_calibration_t.h"
+#include "vislam_imu_t.h"
+#include "vislam_pose_t.h"
+#include "vislam_status_t.h"
+#include "vislam_stereo_frame_t.h"
+
+#define EXIT_RUNTIME 1
+#define EXIT_USAGE 2
+
+#define CHANNEL_MAX 64
+#define DEFAULT_BUDGET_US 100000
+#define STATUS_PERIOD_US 1000000
+#define STATUS_LOG_EVERY 10          /* statuses between two status lines on stderr */
+#define OVERRUN_LOG_PERIOD_US 1000000
+#define INTERVAL_WINDOW 32           /* IMU intervals the automatic budget takes the median of */
+#define STACK_PREFAULT_BYTES (256 * 1024)
+#define DRAIN_MAX 1000               /* messages already queued that are still processed at shutdown */
+#define LCM_ERRORS_MAX 100           /* consecutive lcm_handle failures before giving up */
+#define ENCODE_BUF 1024
+
+typedef struct {
+    const char *config_path;
+    const char *lcm_url;
+    const char *trajectory_path;
+    const char *prefix;
+    const char *channel[6];
+    long budget_us;   /* 0: automatic */
+    int rt_priority;  /* 0: leave the scheduler alone */
+    int cpu;          /* -1: no affinity */
+    int no_mlock;
+    int quiet;
+} options_t;
+
+enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_COUNT };
+
+static const char *const channel_default[CH_COUNT] = {"VISLAM_IMU",  "VISLAM_FEATURES", "VISLAM_CALIB",
+                                                      "VISLAM_POSE", "POSE",            "VISLAM_STATUS"};
+static const char *const channel_option[CH_COUNT] = {"--imu-channel",  "--features-channel", "--calib-channel",
+                                                     "--pose-channel", "--bot-pose-channel", "--status-channel"};
+
+typedef enum { STEP_PROPAGATE = 0, STEP_UPDATE = 1 } step_kind_t;
+
+typedef uint64_t (*alloc_count_fn)(void);
+typedef void (*alloc_arm_fn)(void);
+
+typedef struct {
+    /* counts of messages */
+    uint64_t imu_in, frames_in, calib_in;
+    uint64_t decode_errors;          /* payloads that did not decode, or a frame with a bad count */
+    uint64_t imu_waiting, frames_waiting; /* refused: no calibration yet */
+    uint64_t imu_rejected, frames_rejected; /* refused by the core */
+    uint64_t calib_used, calib_ignored, calib_changed, calib_invalid;
+    uint64_t poses_out, bot_poses_out, status_out, publish_errors;
+    uint64_t trajectory_errors;
+    /* timing */
+    uint64_t steps, overruns;
+} counts_t;
+
+typedef struct {
+    options_t opt;
+    char channel[CH_COUNT][CHANNEL_MAX];
+    lcm_t *lcm;
+
+    vl_config_t cfg;
+    vl_config_file_info_t info;
+    int initialized;
+    int inputs_fed;
+    const char *calib_source;
+
+    counts_t n;
+    int64_t last_input_utime;
+
+    /* decoding storage and core inputs */
+    vislam_imu_t imu_msg;
+    vislam_stereo_frame_t frame_msg;
+    vislam_calibration_t calib_msg;
+    vl_imu_sample_t imu;
+    vl_stereo_frame_t frame;
+    vl_calibration_t calib;
+
+    /* outputs */
+    vl_pose_t pose;
+    vislam_pose_t pose_msg;
+    bot_core_pose_t bot_msg;
+    vislam_status_t status_msg;
+    uint8_t pose_buf[ENCODE_BUF];
+    uint8_t bot_buf[ENCODE_BUF];
+    uint8_t status_buf[ENCODE_BUF];
+    int have_trajectory;
+    vl_trajectory_file_t trajectory;
+
+    /* timing */
+    vl_latency_t lat_all, lat_step[2];
+    int64_t budget_us;
+    int64_t intervals[INTERVAL_WINDOW];
+    unsigned num_intervals, next_interval;
+    int64_t prev_imu_utime;
+    int have_prev_imu;
+    int64_t last_overrun_log_us;
+    uint64_t overruns_unlogged;
+    /* "since the last status" marks for the health bits */
+    uint64_t overruns_at_status, rejected_at_status, numerical_at_status;
+
+    /* allocation counter (LD_PRELOAD), when present */
+    alloc_count_fn alloc_count;
+    alloc_count_fn alloc_count_main; /* the main thread's allocations since vl_alloc_arm */
+    uint64_t alloc_baseline;
+} daemon_t;
+
+/* Several MB (the estimator): static, so it is mapped and locked with the rest at start-up. */
+static vl_estimator_t g_est;
+static daemon_t g;
+
+/* ---- options ---- */
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+            "usage: vislamd [options]\n"
+            "Runs the vislam estimator on LCM messages: subscribes to VISLAM_IMU, VISLAM_FEATURES and\n"
+            "VISLAM_CALIB, publishes VISLAM_POSE and POSE (bot_core.pose_t) after every step and\n"
+            "VISLAM_STATUS once a second. Stops on SIGINT or SIGTERM after the current step.\n"
+            "\n"
+            "  --config FILE           INI configuration on top of the defaults (see tools/vislam.ini);\n"
+            "                          its [calibration] is used until the VISLAM_CALIB message arrives\n"
+            "                          (or always, with override_log = true)\n"
+            "  --lcm-url URL           LCM provider, e.g. udpm://239.255.76.67:7667?ttl=0\n"
+            "                          (default: $LCM_DEFAULT_URL, else LCM's default)\n"
+            "  --trajectory FILE       TUM trajectory, one line per accepted frame (vislam-run's lines),\n"
+            "                          flushed line by line\n"
+            "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
+            "                          of the last %d IMU intervals; %d us until known)\n"
+            "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
+            "  --cpu K                 pin to CPU K (a refusal is a warning)\n"
+            "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
+            "  --channel-prefix P      prefix every channel name below with P\n"
+            "  --imu-channel NAME      default VISLAM_IMU\n"
+            "  --features-channel NAME default VISLAM_FEATURES\n"
+            "  --calib-channel NAME    default VISLAM_CALIB\n"
+            "  --pose-channel NAME     default VISLAM_POSE\n"
+            "  --bot-pose-channel NAME default POSE\n"
+            "  --status-channel NAME   default VISLAM_STATUS\n"
+            "  --quiet                 only warnings and errors on stderr (no periodic status line, no\n"
+            "                          exit summary)\n"
+            "  --help                  this text\n"
+            "\n"
+            "Exit status: 0 stopped by SIGINT/SIGTERM with every output flushed, 1 run-time failure\n"
+            "(LCM, trajectory file), 2 usage or configuration error.\n",
+            INTERVAL_WINDOW, DEFAULT_BUDGET_US, STACK_PREFAULT_BYTES / 1024);
+}
+
+static int parse_long(const char *opt, const char *s, long lo, long hi, long *out)
+{
+    char *end = NULL;
+    errno = 0;
+    const long v = strtol(s, &end, 10);
+    if (end == s || *end != '\0' || errno != 0 || v < lo || v > hi) {
+        fprintf(stderr, "vislamd: %s %s: expected an integer in %ld..%ld\n", opt, s, lo, hi);
+        return -1;
+    }
+    *out = v;
+    return 0;
+}
+
+static int takes_value(const char *a)
+{
+    static const char *const names[] = {"--config", "--lcm-url", "--trajectory", "--channel-prefix",
+                                        "--budget-us", "--rt-priority", "--cpu"};
+    for (size_t i = 0; i < sizeof(names) / sizeof(names[0]); ++i) {
+        if (strcmp(a, names[i]) == 0) {
+            return 1;
+        }
+    }
+    for (int c = 0; c < CH_COUNT; ++c) {
+        if (strcmp(a, channel_option[c]) == 0) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
+static int parse_args(int argc, char **argv, options_t *o)
+{
+    memset(o, 0, sizeof(*o));
+    o->cpu = -1;
+    for (int i = 1; i < argc; ++i) {
+        const char *a = argv[i];
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            usage(stdout);
+            exit(0);
+        } else if (strcmp(a, "--quiet") == 0) {
+            o->quiet = 1;
+            continue;
+        } else if (strcmp(a, "--no-mlock") == 0) {
+            o->no_mlock = 1;
+            continue;
+        }
+        if (a[0] != '-' || a[1] != '-') {
+            fprintf(stderr, "vislamd: unexpected argument %s (see --help)\n", a);
+            return -1;
+        }
+        if (!takes_value(a)) {
+            fprintf(stderr, "vislamd: unknown option %s (see --help)\n", a);
+            return -1;
+        }
+        if (i + 1 >= argc) {
+            fprintf(stderr, "vislamd: %s needs a value\n", a);
+            return -1;
+        }
+        const char *v = argv[++i];
+        long n = 0;
+        int known = 1;
+        if (strcmp(a, "--config") == 0) {
+            o->config_path = v;
+        } else if (strcmp(a, "--lcm-url") == 0) {
+            o->lcm_url = v;
+        } else if (strcmp(a, "--trajectory") == 0) {
+            o->trajectory_path = v;
+        } else if (strcmp(a, "--channel-prefix") == 0) {
+            o->prefix = v;
+        } else if (strcmp(a, "--budget-us") == 0) {
+            if (parse_long(a, v, 1, 1000000000L, &n) != 0) {
+                return -1;
+            }
+            o->budget_us = n;
+        } else if (strcmp(a, "--rt-priority") == 0) {
+            if (parse_long(a, v, 1, 99, &n) != 0) {
+                return -1;
+            }
+            o->rt_priority = (int)n;
+        } else if (strcmp(a, "--cpu") == 0) {
+            if (parse_long(a, v, 0, 4095, &n) != 0) {
+                return -1;
+            }
+            o->cpu = (int)n;
+        } else {
+            known = 0;
+            for (int c = 0; c < CH_COUNT; ++c) {
+                if (strcmp(a, channel_option[c]) == 0) {
+                    o->channel[c] = v;
+                    known = 1;
+                }
+            }
+        }
+        if (!known) {
+            fprintf(stderr, "vislamd: unknown option %s (see --help)\n", a);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static int make_channels(daemon_t *d)
+{
+    for (int c = 0; c < CH_COUNT; ++c) {
+        int n;
+        if (d->opt.channel[c] != NULL) {
+            n = snprintf(d->channel[c], CHANNEL_MAX, "%s", d->opt.channel[c]);
+        } else {
+            n = snprintf(d->channel[c], CHANNEL_MAX, "%s%s", d->opt.prefix != NULL ? d->opt.prefix : "",
+                         channel_default[c]);
+        }
+        if (n <= 0 || n >= CHANNEL_MAX) {
+            fprintf(stderr, "vislamd: channel name for %s empty or longer than %d characters\n", channel_option[c],
+                    CHANNEL_MAX - 1);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+/* ---- calibration (vislam-run's rules) ---- */
+
+static int calibration_equal(const vl_calibration_t *a, const vl_calibration_t *b)
+{
+    if (a->fx != b->fx || a->fy != b->fy || a->cx != b->cx || a->cy != b->cy || a->baseline != b->baseline) {
+        return 0;
+    }
+    for (int i = 0; i < 16; ++i) {
+        if (a->cam_T_imu[i] != b->cam_T_imu[i]) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+static void apply_calibration(daemon_t *d, const vl_calibration_t *calib)
+{
+    if (d->info.override_log) {
+        d->n.calib_ignored++;
+        return;
+    }
+    if (d->initialized && calibration_equal(&d->cfg.calibration, calib)) {
+        if (strcmp(d->calib_source, "log") != 0) {
+            d->calib_source = "log";
+            d->n.calib_used++;
+        } else {
+            d->n.calib_ignored++;
+        }
+        return;
+    }
+    if (d->inputs_fed) {
+        if (d->n.calib_changed++ == 0) {
+            fprintf(stderr, "vislamd: warning: calibration changed after inputs; ignored\n");
+        }
+        return;
+    }
+    vl_config_t candidate = d->cfg;
+    candidate.calibration = *calib;
+    if (vl_config_check(&candidate) != VL_OK || vl_init(&g_est, &candidate) != VL_OK) {
+        if (d->n.calib_invalid++ == 0) {
+            fprintf(stderr, "vislamd: warning: calibration message rejected by vl_config_check\n");
+        }
+        return;
+    }
+    d->cfg = candidate;
+    if (!d->initialized && !d->opt.quiet) {
+        fprintf(stderr, "vislamd: calibration received; estimating\n");
+    }
+    d->initialized = 1;
+    d->calib_source = "log";
+    d->n.calib_used++;
+}
+
+/* ---- timing ---- */
+
+static void note_imu_interval(daemon_t *d, int64_t utime)
+{
+    if (d->have_prev_imu && utime > d->prev_imu_utime) {
+        d->intervals[d->next_interval] = utime - d->prev_imu_utime;
+        d->next_interval = (d->next_interval + 1) % INTERVAL_WINDOW;
+        if (d->num_intervals < INTERVAL_WINDOW) {
+            d->num_intervals++;
+        }
+        if (d->opt.budget_us == 0) {
+            /* Median by insertion sort of a copy: 32 values, cheaper than the step it budgets. */
+            int64_t s[INTERVAL_WINDOW];
+            const unsigned m = d->num_intervals;
+            for (unsigned i = 0; i < m; ++i) {
+                int64_t v = d->intervals[i];
+                unsigned j = i;
+                while (j > 0 && s[j - 1] > v) {
+                    s[j] = s[j - 1];
+                    --j;
+                }
+                s[j] = v;
+            }
+            d->budget_us = s[m / 2];
+        }
+    }
+    d->have_prev_imu = 1;
+    d->prev_imu_utime = utime;
+}
+
+static void finish_step(daemon_t *d, step_kind_t kind, int64_t t0, int64_t utime)
+{
+    const int64_t t1 = vl_clock_monotonic_us();
+    const int64_t dt = t1 - t0;
+    vl_latency_record(&d->lat_all, dt);
+    vl_latency_record(&d->lat_step[kind], dt);
+    d->n.steps++;
+    if (dt <= d->budget_us) {
+        return;
+    }
+    d->n.overruns++;
+    d->overruns_unlogged++;
+    /* At most one line a second: a slow machine must not also drown in its own log. */
+    if (d->last_overrun_log_us == 0 || t1 - d->last_overrun_log_us >= OVERRUN_LOG_PERIOD_US) {
+        fprintf(stderr,
+                "vislamd: budget overrun: %s at utime %" PRId64 " took %" PRId64 " us > %" PRId64
+                " us (%" PRIu64 " overrun(s) since the last message, %" PRIu64 " in all)\n",
+                kind == STEP_UPDATE ? "update" : "propagation", utime, dt, d->budget_us, d->overruns_unlogged,
+                d->n.overruns);
+        d->last_overrun_log_us = t1;
+        d->overruns_unlogged = 0;
+    }
+}
+
+/* ---- outputs ---- */
+
+static void publish(daemon_t *d, int ch, const uint8_t *buf, int len)
+{
+    if (len < 0 || lcm_publish(d->lcm, d->channel[ch], buf, (unsigned int)len) != 0) {
+        d->n.publish_errors++;
+    }
+}
+
+/* The current pose on VISLAM_POSE and POSE, stamped with the input's time. */
+static void publish_pose(daemon_t *d, int8_t source, int64_t utime)
+{
+    if (vl_get_pose(&g_est, &d->pose) != VL_OK) {
+        return;
+    }
+    vl_msg_from_pose(&d->pose, source, (int64_t)d->n.poses_out, &d->pose_msg);
+    d->pose_msg.utime = utime;
+    int len = vislam_pose_t_encode(d->pose_buf, 0, (int)sizeof(d->pose_buf), &d->pose_msg);
+    publish(d, CH_POSE, d->pose_buf, len);
+    d->n.poses_out++;
+    vl_msg_from_pose_bot(&d->pose, &d->bot_msg);
+    d->bot_msg.utime = utime;
+    len = bot_core_pose_t_encode(d->bot_buf, 0, (int)sizeof(d->bot_buf), &d->bot_msg);
+    publish(d, CH_BOT_POSE, d->bot_buf, len);
+    d->n.bot_poses_out++;
+}
+
+static uint64_t rejected_total(const daemon_t *d)
+{
+    return d->n.decode_errors + d->n.imu_waiting + d->n.frames_waiting + d->n.imu_rejected + d->n.frames_rejected;
+}
+
+static int32_t clamp32(int64_t v)
+{
+    return v > INT32_MAX ? INT32_MAX : (v < INT32_MIN ? INT32_MIN : (int32_t)v);
+}
+
+static uint64_t allocations_since_start(const daemon_t *d)
+{
+    return d->alloc_count != NULL ? d->alloc_count() - d->alloc_baseline : 0;
+}
+
+static void publish_status(daemon_t *d)
+{
+    static vl_counters_t zero;
+    const vl_counters_t *c = d->initialized ? vl_get_counters(&g_est) : &zero;
+    vislam_status_t *s = &d->status_msg;
+    const uint64_t rejected = rejected_total(d);
+    s->utime = vl_clock_realtime_us();
+    s->last_input_utime = d->last_input_utime;
+    s->health = VISLAM_STATUS_T_HEALTH_OK;
+    if (!d->initialized) {
+        s->health |= VISLAM_STATUS_T_HEALTH_WAITING_CALIBRATION;
+    }
+    if (d->n.overruns != d->overruns_at_status) {
+        s->health |= VISLAM_STATUS_T_HEALTH_BUDGET_OVERRUN;
+    }
+    if (c->numerical_failures != d->numerical_at_status) {
+        s->health |= VISLAM_STATUS_T_HEALTH_NUMERICAL_FAILURE;
+    }
+    if (rejected != d->rejected_at_status) {
+        s->health |= VISLAM_STATUS_T_HEALTH_INPUT_REJECTED;
+    }
+    s->imu_in = (int64_t)d->n.imu_in;
+    s->frames_in = (int64_t)d->n.frames_in;
+    s->poses_out = (int64_t)d->n.poses_out;
+    s->inputs_rejected = (int64_t)rejected;
+    s->observations_gated = (int64_t)c->observations_gated;
+    s->window_landmarks = d->initialized ? (int32_t)vl_window_size(&g_est) : 0;
+    s->window_capacity = (int32_t)d->cfg.max_landmarks;
+    s->landmarks_mapped = (int64_t)c->landmarks_marginalized;
+    s->budget_us = d->budget_us;
+    s->budget_overruns = (int64_t)d->n.overruns;
+    s->steps = (int64_t)d->n.steps;
+    s->latency_p50_us = clamp32(vl_latency_percentile(&d->lat_all, 50.0));
+    s->latency_p99_us = clamp32(vl_latency_percentile(&d->lat_all, 99.0));
+    s->latency_p999_us = clamp32(vl_latency_percentile(&d->lat_all, 99.9));
+    s->latency_max_us = clamp32(vl_latency_max(&d->lat_all));
+    const int len = vislam_status_t_encode(d->status_buf, 0, (int)sizeof(d->status_buf), s);
+    publish(d, CH_STATUS, d->status_buf, len);
+    d->n.status_out++;
+    d->overruns_at_status = d->n.overruns;
+    d->numerical_at_status = c->numerical_failures;
+    d->rejected_at_status = rejected;
+}
+
+static void print_status_line(const daemon_t *d)
+{
+    const vislam_status_t *s = &d->status_msg;
+    fprintf(stderr,
+            "vislamd: status: imu %" PRId64 " frames %" PRId64 " poses %" PRId64 " rejected %" PRId64
+            " window %d/%d steps %" PRId64 " p50 %d p99 %d max %d us overruns %" PRId64 " (budget %" PRId64
+            " us) health 0x%x",
+            s->imu_in, s->frames_in, s->poses_out, s->inputs_rejected, (int)s->window_landmarks,
+            (int)s->window_capacity, s->steps, (int)s->latency_p50_us, (int)s->latency_p99_us,
+            (int)s->latency_max_us, s->budget_overruns, s->budget_us, (unsigned)s->health);
+    if (d->alloc_count != NULL) {
+        fprintf(stderr, " allocations-after-start-up %" PRIu64, allocations_since_start(d));
+        if (d->alloc_count_main != NULL) {
+            fprintf(stderr, " (main thread %" PRIu64 ")", d->alloc_count_main());
+        }
+    }
+    fputc('\n', stderr);
+}
+
+/* ---- LCM handlers: one step each ---- */
+
+static int decoded_ok(int used, uint32_t len)
+{
+    return used >= 0 && (uint32_t)used == len;
+}
+
+static void on_calibration(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    (void)channel;
+    daemon_t *d = (daemon_t *)user;
+    d->n.calib_in++;
+    if (!decoded_ok(vislam_calibration_t_decode(rbuf->data, 0, (int)rbuf->data_size, &d->calib_msg),
+                    rbuf->data_size)) {
+        d->n.decode_errors++;
+        return;
+    }
+    vl_msg_to_calibration(&d->calib_msg, &d->calib, NULL);
+    apply_calibration(d, &d->calib);
+}
+
+static void on_imu(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    (void)channel;
+    daemon_t *d = (daemon_t *)user;
+    const int64_t t0 = vl_clock_monotonic_us();
+    d->n.imu_in++;
+    if (!decoded_ok(vislam_imu_t_decode(rbuf->data, 0, (int)rbuf->data_size, &d->imu_msg), rbuf->data_size)) {
+        d->n.decode_errors++;
+        return;
+    }
+    if (!d->initialized) {
+        d->n.imu_waiting++;
+        return;
+    }
+    vl_msg_to_imu(&d->imu_msg, &d->imu);
+    note_imu_interval(d, d->imu.utime);
+    d->inputs_fed = 1;
+    if (vl_propagate(&g_est, &d->imu) < 0) {
+        d->n.imu_rejected++;
+    } else {
+        d->last_input_utime = d->imu.utime;
+        publish_pose(d, VISLAM_POSE_T_SOURCE_IMU, d->imu.utime);
+    }
+    finish_step(d, STEP_PROPAGATE, t0, d->imu.utime);
+}
+
+static void on_features(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    (void)channel;
+    daemon_t *d = (daemon_t *)user;
+    const int64_t t0 = vl_clock_monotonic_us();
+    d->n.frames_in++;
+    if (!decoded_ok(vislam_stereo_frame_t_decode(rbuf->data, 0, (int)rbuf->data_size, &d->frame_msg),
+                    rbuf->data_size) ||
+        vl_msg_to_stereo_frame(&d->frame_msg, &d->frame) != VL_MSG_OK) {
+        d->n.decode_errors++;
+        return;
+    }
+    if (!d->initialized) {
+        d->n.frames_waiting++;
+        return;
+    }
+    d->inputs_fed = 1;
+    const vl_status_t s = vl_update(&g_est, &d->frame);
+    if (s < 0) {
+        d->n.frames_rejected++;
+    } else {
+        d->last_input_utime = d->frame.utime;
+        publish_pose(d, VISLAM_POSE_T_SOURCE_FEATURES, d->frame.utime);
+        if (d->have_trajectory && vl_trajectory_write(&d->trajectory, d->frame.utime, &d->pose) != 0) {
+            if (d->n.trajectory_errors++ == 0) {
+                fprintf(stderr, "vislamd: error: write to the trajectory %s failed\n", d->opt.trajectory_path);
+            }
+        }
+    }
+    finish_step(d, STEP_UPDATE, t0, d->frame.utime);
+}
+
+/* Start-up only: the daemon's own first status, back through the multicast loopback. */
+static void on_own_status(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    (void)rbuf;
+    (void)channel;
+    *(int *)user = 1;
+}
+
+/*
+ * LCM 1.3.1 allocates lazily: the main thread's first lcm_handle creates a GLib
+ * mutex, and the first message on each channel makes the receive thread match
+ * every subscription's regex (GLib/PCRE2) and cache the result. Publishing the
+ * first status and handling it here moves the main thread's share into
+ * start-up; the receive thread's per-channel cost stays, bounded by the number
+ * of channel names on the network (see the README's measurement).
+ */
+static void warm_up_lcm(daemon_t *d, int fd)
+{
+    int seen = 0;
+    lcm_subscription_t *sub = lcm_subscribe(d->lcm, d->channel[CH_STATUS], on_own_status, &seen);
+    publish_status(d);
+    const int64_t deadline = vl_clock_monotonic_us() + 200000;
+    while (!seen && sub != NULL) {
+        const int64_t left = deadline - vl_clock_monotonic_us();
+        if (left <= 0 || vl_signal_wait_fd(fd, left) <= 0) {
+            break; /* no loopback (or a signal): the first lcm_handle will allocate later */
+        }
+        lcm_handle(d->lcm);
+    }
+    if (sub != NULL) {
+        lcm_unsubscribe(d->lcm, sub);
+    }
+}
+
+/* ---- core logger: warnings only, rate limited by wall time like the overrun log ---- */
+
+static void core_log(void *user, vl_log_level_t level, int64_t utime, const char *message)
+{
+    static int64_t last_us;
+    static uint64_t suppressed;
+    daemon_t *d = (daemon_t *)user;
+    if (level < VL_LOG_WARN || (d->opt.quiet && level < VL_LOG_ERROR)) {
+        return;
+    }
+    const int64_t now = vl_clock_monotonic_us();
+    if (last_us != 0 && now - last_us < OVERRUN_LOG_PERIOD_US) {
+        suppressed++;
+        return;
+    }
+    fprintf(stderr, "vislamd: core %s at utime %" PRId64 ": %s (%" PRIu64 " suppressed before)\n",
+            level == VL_LOG_ERROR ? "error" : "warning", utime, message != NULL ? message : "", suppressed);
+    last_us = now;
+    suppressed = 0;
+}
+
+/* ---- start-up ---- */
+
+static int load_config(daemon_t *d)
+{
+    vl_config_default(&d->cfg);
+    memset(&d->info, 0, sizeof(d->info));
+    d->info.preset = VL_PRESET_NONE;
+    if (d->opt.config_path != NULL) {
+        char err[512];
+        if (vl_config_load_ini_ex(d->opt.config_path, &d->cfg, &d->info, err, sizeof(err)) != VL_OK) {
+            fprintf(stderr, "vislamd: %s\n", err);
+            return -1;
+        }
+    }
+    d->cfg.landmark_sink = NULL;
+    d->cfg.log = core_log;
+    d->cfg.log_user = d;
+    return 0;
+}
+
+static void realtime_setup(const options_t *o)
+{
+    char msg[256];
+    if (o->cpu >= 0) {
+        const vl_rt_status_t s = vl_rt_set_affinity(o->cpu, msg, sizeof(msg));
+        if (s != VL_RT_OK || !o->quiet) {
+            fprintf(stderr, "vislamd: %s%s\n", s != VL_RT_OK ? "warning: " : "", msg);
+        }
+    }
+    if (o->rt_priority > 0) {
+        const vl_rt_status_t s = vl_rt_set_fifo(o->rt_priority, msg, sizeof(msg));
+        if (s != VL_RT_OK || !o->quiet) {
+            fprintf(stderr, "vislamd: %s%s\n", s != VL_RT_OK ? "warning: " : "", msg);
+        }
+    }
+    if (!o->no_mlock) {
+        const vl_rt_status_t s = vl_rt_lock_memory(msg, sizeof(msg));
+        if (s != VL_RT_OK || !o->quiet) {
+            fprintf(stderr, "vislamd: %s%s\n", s != VL_RT_OK ? "warning: " : "", msg);
+        }
+        vl_rt_prefault_stack(STACK_PREFAULT_BYTES, msg, sizeof(msg));
+        if (!o->quiet) {
+            fprintf(stderr, "vislamd: %s\n", msg);
+        }
+    }
+}
+
+/* Runs every output path once before the loop, so first-use costs (and lazy allocations) happen here. */
+static int warm_up(daemon_t *d)
+{
+    vl_pose_t p;
+    memset(&p, 0, sizeof(p));
+    vl_msg_from_pose(&p, VISLAM_POSE_T_SOURCE_IMU, 0, &d->pose_msg);
+    vl_msg_from_pose_bot(&p, &d->bot_msg);
+    memset(&d->status_msg, 0, sizeof(d->status_msg));
+    if (vislam_pose_t_encoded_size(&d->pose_msg) > ENCODE_BUF ||
+        bot_core_pose_t_encoded_size(&d->bot_msg) > ENCODE_BUF ||
+        vislam_status_t_encoded_size(&d->status_msg) > ENCODE_BUF) {
+        fprintf(stderr, "vislamd: internal error: an encoded message exceeds %d bytes\n", ENCODE_BUF);
+        return -1;
+    }
+    char line[VL_TRAJECTORY_LINE_MAX];
+    p.rotation[0] = p.rotation[4] = p.rotation[8] = 1.0;
+    vl_trajectory_format_line(line, sizeof(line), 0, &p);
+    return 0;
+}
+
+static void print_summary(const daemon_t *d)
+{
+    static vl_counters_t zero;
+    const vl_counters_t *c = d->initialized ? vl_get_counters(&g_est) : &zero;
+    fprintf(stderr, "vislamd: stopped (%s); calibration from %s\n",
+            vl_signal_last() == SIGINT ? "SIGINT" : (vl_signal_last() == SIGTERM ? "SIGTERM" : "error"),
+            d->calib_source);
+    fprintf(stderr,
+            "  in: imu %" PRIu64 " frames %" PRIu64 " calibrations %" PRIu64 "; out: poses %" PRIu64
+            " (+%" PRIu64 " on %s), statuses %" PRIu64 ", trajectory lines %" PRIu64 "\n",
+            d->n.imu_in, d->n.frames_in, d->n.calib_in, d->n.poses_out, d->n.bot_poses_out, d->channel[CH_BOT_POSE],
+            d->n.status_out, d->have_trajectory ? vl_trajectory_lines(&d->trajectory) : 0);
+    fprintf(stderr,
+            "  rejected %" PRIu64 ": waiting for calibration (imu %" PRIu64 ", frames %" PRIu64 "), decode errors %" PRIu64
+            ", refused by the core (imu %" PRIu64 ", frames %" PRIu64 ")\n",
+            rejected_total(d), d->n.imu_waiting, d->n.frames_waiting, d->n.decode_errors, d->n.imu_rejected,
+            d->n.frames_rejected);
+    fprintf(stderr,
+            "  calibrations used %" PRIu64 ", ignored %" PRIu64 ", changed after inputs %" PRIu64 ", invalid %" PRIu64
+            "; publish errors %" PRIu64 "; trajectory write errors %" PRIu64 "\n",
+            d->n.calib_used, d->n.calib_ignored, d->n.calib_changed, d->n.calib_invalid, d->n.publish_errors,
+            d->n.trajectory_errors);
+    fprintf(stderr, "  core: frames accepted %" PRIu64 ", observations used %" PRIu64 ", gated %" PRIu64
+                    ", landmarks mapped %" PRIu64 ", window %u/%u, numerical failures %" PRIu64 "\n",
+            c->frames_accepted, c->observations_used, c->observations_gated, c->landmarks_marginalized,
+            d->initialized ? (unsigned)vl_window_size(&g_est) : 0u, (unsigned)d->cfg.max_landmarks,
+            c->numerical_failures);
+    fprintf(stderr, "  budget %" PRId64 " us (%s): %" PRIu64 " overrun(s) in %" PRIu64 " steps\n", d->budget_us,
+            d->opt.budget_us > 0 ? "--budget-us" : "sensor period", d->n.overruns, d->n.steps);
+    fprintf(stderr, "  step latency (CLOCK_MONOTONIC, decode to publish):\n");
+    vl_latency_print(&d->lat_all, stderr, "    all steps  ");
+    vl_latency_print(&d->lat_step[STEP_PROPAGATE], stderr, "    propagation");
+    vl_latency_print(&d->lat_step[STEP_UPDATE], stderr, "    update     ");
+    fprintf(stderr, "  histogram of all steps:\n");
+    vl_latency_print_buckets(&d->lat_all, stderr);
+    if (d->alloc_count != NULL) {
+        fprintf(stderr, "  heap allocations after start-up: %" PRIu64 " in the process", allocations_since_start(d));
+        if (d->alloc_count_main != NULL) {
+            fprintf(stderr, ", %" PRIu64 " in the main (estimation) thread", d->alloc_count_main());
+        }
+        fprintf(stderr, " (preloaded allocation counter)\n");
+    }
+}
+
+int main(int argc, char **argv)
+{
+    daemon_t *d = &g;
+    if (parse_args(argc, argv, &d->opt) != 0 || make_channels(d) != 0 || load_config(d) != 0) {
+        return EXIT_USAGE;
+    }
+    d->calib_source = "none";
+    d->budget_us = d->opt.budget_us > 0 ? d->opt.budget_us : DEFAULT_BUDGET_US;
+    vl_latency_reset(&d->lat_all);
+    vl_latency_reset(&d->lat_step[0]);
+    vl_latency_reset(&d->lat_step[1]);
+
+    /* Signals: handlers first, then blocked, so LCM's receive thread inherits the blocked mask
+       and they reach the main thread only inside vl_signal_wait_fd. */
+    if (vl_signal_install() != 0 || vl_signal_block() != 0) {
+        fprintf(stderr, "vislamd: cannot install signal handlers: %s\n", strerror(errno));
+        return EXIT_RUNTIME;
+    }
+    realtime_setup(&d->opt);
+
+    if (d->info.has_calibration) {
+        if (vl_init(&g_est, &d->cfg) != VL_OK) {
+            fprintf(stderr, "vislamd: vl_init refused the configuration\n");
+            return EXIT_USAGE;
+        }
+        d->initialized = 1;
+        d->calib_source = "config";
+    }
+    if (d->opt.trajectory_path != NULL) {
+        char err[512];
+        if (vl_trajectory_open(&d->trajectory, d->opt.trajectory_path, err, sizeof(err)) != 0) {
+            fprintf(stderr, "vislamd: %s\n", err);
+            return EXIT_RUNTIME;
+        }
+        d->have_trajectory = 1;
+    }
+    if (warm_up(d) != 0) {
+        return EXIT_RUNTIME;
+    }
+
+    d->lcm = lcm_create(d->opt.lcm_url);
+    if (d->lcm == NULL) {
+        fprintf(stderr, "vislamd: cannot create LCM (url %s)\n",
+                d->opt.lcm_url != NULL ? d->opt.lcm_url : "default; set --lcm-url or LCM_DEFAULT_URL");
+        return EXIT_RUNTIME;
+    }
+    if (lcm_subscribe(d->lcm, d->channel[CH_CALIB], on_calibration, d) == NULL ||
+        lcm_subscribe(d->lcm, d->channel[CH_IMU], on_imu, d) == NULL ||
+        lcm_subscribe(d->lcm, d->channel[CH_FEATURES], on_features, d) == NULL) {
+        fprintf(stderr, "vislamd: lcm_subscribe failed\n");
+        lcm_destroy(d->lcm);
+        return EXIT_RUNTIME;
+    }
+    const int fd = lcm_get_fileno(d->lcm); /* also starts LCM's receive side */
+    if (fd < 0) {
+        fprintf(stderr, "vislamd: LCM has no file descriptor to wait on\n");
+        lcm_destroy(d->lcm);
+        return EXIT_RUNTIME;
+    }
+
+    warm_up_lcm(d, fd); /* also publishes the first status: "I am up" */
+
+    /* End of start-up: from here on the loop should not allocate. */
+    void *sym = dlsym(RTLD_DEFAULT, "vl_alloc_count");
+    if (sym != NULL) {
+        memcpy(&d->alloc_count, &sym, sizeof(sym));
+    }
+    sym = dlsym(RTLD_DEFAULT, "vl_alloc_count_armed_thread");
+    if (sym != NULL) {
+        memcpy(&d->alloc_count_main, &sym, sizeof(sym));
+    }
+    sym = dlsym(RTLD_DEFAULT, "vl_alloc_arm");
+    if (d->alloc_count != NULL) {
+        d->alloc_baseline = d->alloc_count();
+    }
+    if (sym != NULL) {
+        alloc_arm_fn arm;
+        memcpy(&arm, &sym, sizeof(sym));
+        arm();
+    }
+    if (!d->opt.quiet) {
+        fprintf(stderr, "vislamd: ready: %s %s %s -> %s %s %s (lcm %s)%s\n", d->channel[CH_IMU],
+                d->channel[CH_FEATURES], d->channel[CH_CALIB], d->channel[CH_POSE], d->channel[CH_BOT_POSE],
+                d->channel[CH_STATUS], d->opt.lcm_url != NULL ? d->opt.lcm_url : "default",
+                d->initialized ? "" : "; waiting for a calibration");
+    }
+
+    int exit_code = 0;
+    int lcm_errors = 0;
+    int64_t next_status = vl_clock_monotonic_us() + STATUS_PERIOD_US;
+    while (!vl_signal_stop_requested()) {
+        int64_t now = vl_clock_monotonic_us();
+        if (now >= next_status) {
+            publish_status(d);
+            if (!d->opt.quiet && d->n.status_out % STATUS_LOG_EVERY == 0) {
+                print_status_line(d);
+            }
+            next_status += STATUS_PERIOD_US;
+            if (next_status <= now) {
+                next_status = now + STATUS_PERIOD_US; /* do not burst after a stall */
+            }
+        }
+        const int r = vl_signal_wait_fd(fd, next_status - now);
+        if (r > 0) {
+            if (lcm_handle(d->lcm) != 0) {
+                if (++lcm_errors >= LCM_ERRORS_MAX) {
+                    fprintf(stderr, "vislamd: lcm_handle failed %d times in a row; stopping\n", lcm_errors);
+                    exit_code = EXIT_RUNTIME;
+                    break;
+                }
+            } else {
+                lcm_errors = 0;
+            }
+        } else if (r < 0 && errno != EINTR) {
+            fprintf(stderr, "vislamd: waiting for LCM failed: %s\n", strerror(errno));
+            exit_code = EXIT_RUNTIME;
+            break;
+        }
+    }
+
+    /* Messages already received are still processed, so no input that arrived is lost. */
+    for (int i = 0; i < DRAIN_MAX && exit_code == 0; ++i) {
+        struct pollfd p = {fd, POLLIN, 0};
+        if (poll(&p, 1, 0) != 1 || !(p.revents & POLLIN) || lcm_handle(d->lcm) != 0) {
+            break;
+        }
+    }
+    publish_status(d);
+    if (!d->opt.quiet) {
+        print_status_line(d);
+        print_summary(d);
+    }
+    if (d->have_trajectory && vl_trajectory_close(&d->trajectory) != 0) {
+        fprintf(stderr, "vislamd: error: the trajectory %s is incomplete (write error)\n", d->opt.trajectory_path);
+        exit_code = EXIT_RUNTIME;
+    }
+    lcm_destroy(d->lcm);
+    return exit_code;
+}

@@ -1,0 +1,63 @@
+/**
+ * @file vl_trajectory_file.h
+ * @brief TUM trajectory writer shared by vislam-run and vislamd.
+ *
+ * One line per pose: "time tx ty tz qx qy qz qw", time in seconds printed
+ * exactly from the microsecond stamp (6 decimals, no floating point), the
+ * position and the world-from-IMU quaternion (w >= 0) with 9 decimals. Both
+ * programs write through this file, so their lines are identical by
+ * construction. Each line is flushed to the kernel as it is written: a crash
+ * loses at most the line being written. The stdio buffer lives inside the
+ * writer, so writing does not allocate after vl_trajectory_open.
+ */
+#ifndef VISLAM_PLATFORM_VL_TRAJECTORY_FILE_H
+#define VISLAM_PLATFORM_VL_TRAJECTORY_FILE_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+
+#include "vislam/vislam.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/** Longest line the writer produces, terminator included: 7 numbers of up to 320 characters
+    (%.9f of +-DBL_MAX) and the time. */
+#define VL_TRAJECTORY_LINE_MAX 2560
+
+/** Writer state; members are private. */
+typedef struct {
+    FILE *f;
+    uint64_t lines;                          /**< lines written */
+    int error;                               /**< a write or flush failed */
+    char buffer[4096];                        /**< stdio buffer (setvbuf) */
+} vl_trajectory_file_t;
+
+/**
+ * Formats one TUM line (with its newline) into @p buf.
+ * @return the line's length, or -1 if @p len is too small
+ */
+int vl_trajectory_format_line(char *buf, size_t len, int64_t utime, const vl_pose_t *pose);
+
+/**
+ * Creates (truncates) @p path.
+ * @return 0, or -1 with a message in @p err
+ */
+int vl_trajectory_open(vl_trajectory_file_t *t, const char *path, char *err, size_t err_len);
+
+/** Appends one line and flushes it. 0, or -1 on a write error (also remembered for close). */
+int vl_trajectory_write(vl_trajectory_file_t *t, int64_t utime, const vl_pose_t *pose);
+
+/** Lines written so far. */
+uint64_t vl_trajectory_lines(const vl_trajectory_file_t *t);
+
+/** Closes the file. 0, or -1 if any write, flush or the close failed. Safe to call twice. */
+int vl_trajectory_close(vl_trajectory_file_t *t);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* VISLAM_PLATFORM_VL_TRAJECTORY_FILE_H */

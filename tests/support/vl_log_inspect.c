@@ -1,0 +1,155 @@
+/*
+ * vl_log_inspect LOG: summarizes what vislamd published, from a log recorded
+ * with lcm-logger, as "key value" lines for tests/test_daemon.sh:
+ *
+ *   channel.NAME N                 events per channel
+ *   pose.count / pose.imu / pose.features / pose.decode_errors
+ *   pose.sequence_ok 1|0           sequences are 0, 1, 2, ... in order
+ *   pose.last_features_utime U     utime of the last FEATURES pose
+ *   bot.count / bot.decode_errors / bot.matches_pose 1|0 (same utime and position as VISLAM_POSE, in order)
+ *   status.count / status.decode_errors / status.utime_increasing 1|0
+ *   status.first.FIELD V / status.last.FIELD V   every field of the first and last vislam.status_t
+ */
+#include <inttypes.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <lcm/lcm.h>
+
+#include "bot_core_pose_t.h"
+#include "vislam_pose_t.h"
+#include "vislam_status_t.h"
+
+#define MAX_CH 32
+#define MAX_POSES 100000
+
+typedef struct {
+    char name[64];
+    uint64_t n;
+} ch_t;
+
+static ch_t channels[MAX_CH];
+static int num_channels;
+/* Pose utimes and positions, to compare the bot_core stream against. */
+static int64_t pose_utime[MAX_POSES];
+static double pose_x[MAX_POSES];
+
+static void count_channel(const char *name)
+{
+    for (int i = 0; i < num_channels; ++i) {
+        if (strcmp(channels[i].name, name) == 0) {
+            channels[i].n++;
+            return;
+        }
+    }
+    if (num_channels < MAX_CH) {
+        snprintf(channels[num_channels].name, sizeof(channels[num_channels].name), "%s", name);
+        channels[num_channels++].n = 1;
+    }
+}
+
+static void print_status(const char *which, const vislam_status_t *s)
+{
+#define F64(f) printf("status.%s.%s %" PRId64 "\n", which, #f, (int64_t)s->f)
+    F64(utime);
+    F64(last_input_utime);
+    F64(health);
+    F64(imu_in);
+    F64(frames_in);
+    F64(poses_out);
+    F64(inputs_rejected);
+    F64(observations_gated);
+    F64(window_landmarks);
+    F64(window_capacity);
+    F64(landmarks_mapped);
+    F64(budget_us);
+    F64(budget_overruns);
+    F64(steps);
+    F64(latency_p50_us);
+    F64(latency_p99_us);
+    F64(latency_p999_us);
+    F64(latency_max_us);
+#undef F64
+}
+
+int main(int argc, char **argv)
+{
+    if (argc != 2) {
+        fprintf(stderr, "usage: vl_log_inspect LOG\n");
+        return 2;
+    }
+    lcm_eventlog_t *log = lcm_eventlog_create(argv[1], "r");
+    if (log == NULL) {
+        fprintf(stderr, "vl_log_inspect: cannot read %s\n", argv[1]);
+        return 2;
+    }
+    static vislam_pose_t pose;
+    static bot_core_pose_t bot;
+    static vislam_status_t status, first_status, last_status;
+    uint64_t poses = 0, imu = 0, features = 0, pose_err = 0, bots = 0, bot_err = 0, statuses = 0, status_err = 0;
+    int sequence_ok = 1, bot_match = 1, status_increasing = 1;
+    int64_t last_features_utime = 0;
+    lcm_eventlog_event_t *ev;
+    while ((ev = lcm_eventlog_read_next_event(log)) != NULL) {
+        count_channel(ev->channel);
+        if (strcmp(ev->channel, "VISLAM_POSE") == 0) {
+            if (vislam_pose_t_decode(ev->data, 0, ev->datalen, &pose) < 0) {
+                pose_err++;
+            } else {
+                if (pose.sequence != (int64_t)poses) {
+                    sequence_ok = 0;
+                }
+                if (poses < MAX_POSES) {
+                    pose_utime[poses] = pose.utime;
+                    pose_x[poses] = pose.position[0];
+                }
+                poses++;
+                if (pose.source == VISLAM_POSE_T_SOURCE_IMU) {
+                    imu++;
+                } else if (pose.source == VISLAM_POSE_T_SOURCE_FEATURES) {
+                    features++;
+                    last_features_utime = pose.utime;
+                }
+            }
+        } else if (strcmp(ev->channel, "POSE") == 0) {
+            if (bot_core_pose_t_decode(ev->data, 0, ev->datalen, &bot) < 0) {
+                bot_err++;
+            } else {
+                if (bots >= poses || bots >= MAX_POSES || pose_utime[bots] != bot.utime || pose_x[bots] != bot.pos[0]) {
+                    bot_match = 0;
+                }
+                bots++;
+            }
+        } else if (strcmp(ev->channel, "VISLAM_STATUS") == 0) {
+            if (vislam_status_t_decode(ev->data, 0, ev->datalen, &status) < 0) {
+                status_err++;
+            } else {
+                if (statuses == 0) {
+                    first_status = status;
+                } else if (status.utime <= last_status.utime) {
+                    status_increasing = 0;
+                }
+                last_status = status;
+                statuses++;
+            }
+        }
+        lcm_eventlog_free_event(ev);
+    }
+    lcm_eventlog_destroy(log);
+    for (int i = 0; i < num_channels; ++i) {
+        printf("channel.%s %" PRIu64 "\n", channels[i].name, channels[i].n);
+    }
+    printf("pose.count %" PRIu64 "\npose.imu %" PRIu64 "\npose.features %" PRIu64 "\npose.decode_errors %" PRIu64
+           "\npose.sequence_ok %d\npose.last_features_utime %" PRId64 "\n",
+           poses, imu, features, pose_err, sequence_ok, last_features_utime);
+    printf("bot.count %" PRIu64 "\nbot.decode_errors %" PRIu64 "\nbot.matches_pose %d\n", bots, bot_err,
+           bot_match && bots == poses);
+    printf("status.count %" PRIu64 "\nstatus.decode_errors %" PRIu64 "\nstatus.utime_increasing %d\n", statuses,
+           status_err, status_increasing);
+    if (statuses > 0) {
+        print_status("first", &first_status);
+        print_status("last", &last_status);
+    }
+    return 0;
+}

@@ -1,0 +1,204 @@
+#!/usr/bin/env bash
+# Integration test of vislamd and vislam-replay (issue 3), run by CTest:
+#
+#   tests/test_daemon.sh BIN_DIR ALLOC_COUNTER_SO LOG_INSPECT SOURCE_DIR
+#
+# Runs inside a private network namespace (unshare --net, loopback with a multicast
+# route, udpm with ttl=0), so it neither needs nor disturbs the host's LCM traffic.
+# Checks:
+#   1. counts: every IMU sample and frame of data/sample.lcmlog gives one VISLAM_POSE and one
+#      POSE; the status messages' contents are consistent (decoded from an lcm-logger log).
+#   2. equivalence: the daemon's trajectory under a --lockstep replay is byte-identical to
+#      vislam-run's on the same log.
+#   3. SIGTERM mid-run: exit 0, the trajectory is a complete prefix of the offline one ending
+#      at the last frame whose pose was published, and a final status was published.
+#   4. heap allocations after start-up (LD_PRELOAD counter): none in the main thread; the
+#      process total (LCM's receive thread, first sight of each channel) stays bounded.
+# Exit 77 (CTest skip) when a private network namespace or lcm-logger is unavailable.
+set -uo pipefail
+
+SKIP=77
+if [ $# -ne 4 ]; then
+  echo "usage: $0 BIN_DIR ALLOC_COUNTER_SO LOG_INSPECT SOURCE_DIR" >&2
+  exit 2
+fi
+BIN=$1
+ALLOC_SO=$2
+INSPECT=$3
+SRC=$4
+LOG="$SRC/data/sample.lcmlog"
+
+if [ -z "${VL_TEST_IN_NETNS:-}" ]; then
+  if ! command -v lcm-logger >/dev/null 2>&1; then
+    echo "SKIP: lcm-logger not found (Debian package liblcm-bin)"
+    exit $SKIP
+  fi
+  if ! unshare --net true 2>/dev/null; then
+    echo "SKIP: cannot create a private network namespace (unshare --net needs root or user namespaces);"
+    echo "      run this test as root, or in a container that allows it"
+    exit $SKIP
+  fi
+  exec unshare --net env VL_TEST_IN_NETNS=1 bash "$0" "$@"
+fi
+
+# ---- inside the namespace ---------------------------------------------------------------------
+ip link set lo up multicast on || { echo "SKIP: cannot bring up lo in the namespace"; exit $SKIP; }
+ip route add 224.0.0.0/4 dev lo || { echo "SKIP: cannot add a multicast route in the namespace"; exit $SKIP; }
+URL='udpm://239.255.76.67:7667?ttl=0'
+OUT=$(mktemp -d /tmp/vislam_test_daemon.XXXXXX)
+FAILS=0
+PIDS=()
+
+cleanup() {
+  for p in "${PIDS[@]}"; do
+    kill "$p" 2>/dev/null
+  done
+  if [ "$FAILS" -eq 0 ]; then
+    rm -rf "$OUT"
+  else
+    echo "outputs kept in $OUT"
+  fi
+}
+trap cleanup EXIT
+
+check() { # check DESCRIPTION COMMAND...
+  local what=$1
+  shift
+  if "$@"; then
+    echo "ok:   $what"
+  else
+    echo "FAIL: $what"
+    FAILS=$((FAILS + 1))
+  fi
+}
+value() { # value FILE KEY -> the value of "KEY value" in FILE
+  awk -v k="$2" '$1 == k { print $2; found = 1 } END { if (!found) print "missing" }' "$1"
+}
+eq() { [ "$1" = "$2" ] || { echo "      expected '$2', got '$1'"; return 1; }; }
+le() { [ "$1" -le "$2" ] 2>/dev/null || { echo "      expected $1 <= $2"; return 1; }; }
+# wait_exit PID SECONDS: waits for PID to end; its exit status in $WAIT_RC (124 on timeout).
+wait_exit() {
+  local i
+  for ((i = 0; i < $2 * 10; i++)); do
+    if ! kill -0 "$1" 2>/dev/null; then
+      wait "$1"
+      WAIT_RC=$?
+      return 0
+    fi
+    sleep 0.1
+  done
+  kill -KILL "$1" 2>/dev/null
+  wait "$1" 2>/dev/null
+  WAIT_RC=124
+}
+
+START=$SECONDS
+echo "== offline reference: vislam-run"
+"$BIN/vislam-run" "$LOG" --trajectory "$OUT/offline.tum" --quiet
+check "vislam-run succeeds" eq $? 0
+FRAMES=$(wc -l <"$OUT/offline.tum")
+check "offline trajectory has 200 lines" eq "$FRAMES" 200
+LAST_UTIME=$(tail -n 1 "$OUT/offline.tum" | awk '{ split($1, t, "."); printf "%d%06d\n", t[1], t[2] }')
+
+# ---- run A: full lockstep replay at 4x ---------------------------------------------------------
+echo "== run A: vislamd + vislam-replay --lockstep --speed 4"
+lcm-logger --lcm-url="$URL" --channel='(VISLAM_POSE|POSE|VISLAM_STATUS)' -q -f "$OUT/a.lcmlog" &
+LOGGER=$!
+PIDS+=("$LOGGER")
+sleep 0.5 # subscribed before the daemon's first status
+LD_PRELOAD="$ALLOC_SO" "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/a.tum" 2>"$OUT/a.daemon.err" &
+DAEMON=$!
+PIDS+=("$DAEMON")
+"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 4 --wait-for VISLAM_STATUS --timeout-ms 5000 \
+  --summary-json "$OUT/a.replay.json" 2>"$OUT/a.replay.err"
+check "replay A exits 0 (every frame's pose came back)" eq $? 0
+kill -TERM "$DAEMON"
+wait_exit "$DAEMON" 10
+check "daemon A exits 0 on SIGTERM" eq "$WAIT_RC" 0
+sleep 0.3 # the final status reaches the logger
+kill -INT "$LOGGER"
+wait_exit "$LOGGER" 5
+"$INSPECT" "$OUT/a.lcmlog" >"$OUT/a.inspect"
+sed 's/^/      /' "$OUT/a.replay.err" | grep -v '^\s*$'
+grep -E 'step latency|all steps|propagation|update  |heap allocations' "$OUT/a.daemon.err" | sed 's/^/      /'
+
+# (1) counts in = counts out
+A=$OUT/a.inspect
+check "VISLAM_POSE: 400 poses (200 imu + 200 features)" eq "$(value "$A" pose.count)/$(value "$A" pose.imu)/$(value "$A" pose.features)" "400/200/200"
+check "VISLAM_POSE sequence numbers 0..399 in order" eq "$(value "$A" pose.sequence_ok)" 1
+check "POSE (bot_core.pose_t): one per VISLAM_POSE, same utime and position" eq "$(value "$A" bot.count)/$(value "$A" bot.matches_pose)" "400/1"
+check "no undecodable message" eq "$(value "$A" pose.decode_errors)/$(value "$A" bot.decode_errors)/$(value "$A" status.decode_errors)" "0/0/0"
+check "replay counted 400 poses" grep -q '"poses_received": 400' "$OUT/a.replay.json"
+check "status published at least twice, wall-clock utime increasing" test "$(value "$A" status.count)" -ge 2 -a "$(value "$A" status.utime_increasing)" = 1
+check "first status: waiting for calibration" eq "$(value "$A" status.first.health)" 1
+check "final status: imu_in 200, frames_in 200, poses_out 400, rejected 0, steps 400" \
+  eq "$(value "$A" status.last.imu_in)/$(value "$A" status.last.frames_in)/$(value "$A" status.last.poses_out)/$(value "$A" status.last.inputs_rejected)/$(value "$A" status.last.steps)" "200/200/400/0/400"
+check "final status: last_input_utime is the last frame's" eq "$(value "$A" status.last.last_input_utime)" "$LAST_UTIME"
+check "final status: window capacity 128, 0 < landmarks <= 128, landmarks mapped > 0" \
+  test "$(value "$A" status.last.window_capacity)" = 128 -a "$(value "$A" status.last.window_landmarks)" -gt 0 \
+  -a "$(value "$A" status.last.window_landmarks)" -le 128 -a "$(value "$A" status.last.landmarks_mapped)" -gt 0
+check "final status: observations gated > 0 (the sample has outliers)" test "$(value "$A" status.last.observations_gated)" -gt 0
+check "final status: budget = sensor period (99..109 ms)" \
+  test "$(value "$A" status.last.budget_us)" -ge 99000 -a "$(value "$A" status.last.budget_us)" -le 109000
+check "final status: 0 < p50 <= p99 <= p99.9 <= max" \
+  test 0 -lt "$(value "$A" status.last.latency_p50_us)" -a "$(value "$A" status.last.latency_p50_us)" -le "$(value "$A" status.last.latency_p99_us)" \
+  -a "$(value "$A" status.last.latency_p99_us)" -le "$(value "$A" status.last.latency_p999_us)" \
+  -a "$(value "$A" status.last.latency_p999_us)" -le "$(value "$A" status.last.latency_max_us)"
+OVERRUNS=$(value "$A" status.last.budget_overruns)
+HEALTH=$(value "$A" status.last.health)
+check "final status: health has no flag but (possibly) overrun; overruns <= steps" \
+  test \( "$HEALTH" = 0 -o "$HEALTH" = 2 \) -a "$OVERRUNS" -le 400
+
+# (2) equivalence with the offline run
+check "daemon trajectory (lockstep) byte-identical to vislam-run's" cmp "$OUT/a.tum" "$OUT/offline.tum"
+
+# (4) allocations after start-up
+ALLOC_LINE=$(grep 'heap allocations after start-up' "$OUT/a.daemon.err")
+ALLOC_PROC=$(echo "$ALLOC_LINE" | sed -E 's/.*start-up: ([0-9]+) in the process.*/\1/')
+ALLOC_MAIN=$(echo "$ALLOC_LINE" | sed -E 's/.*, ([0-9]+) in the main.*/\1/')
+check "allocation counter was found by the daemon" test -n "$ALLOC_LINE"
+check "no heap allocation in the main (estimation) thread after start-up" eq "$ALLOC_MAIN" 0
+# LCM 1.3.1's receive thread allocates the first time it sees each channel name (regex match
+# of every subscription, GLib/PCRE2); 6 channels here. Bounded, not per message.
+check "process-wide allocations after start-up bounded (<= 150; measured $ALLOC_PROC)" le "$ALLOC_PROC" 150
+
+# ---- run B: SIGTERM in the middle of a real-time replay ----------------------------------------
+echo "== run B: SIGTERM in the middle of a replay at the recorded rate"
+lcm-logger --lcm-url="$URL" --channel='(VISLAM_POSE|VISLAM_STATUS)' -q -f "$OUT/b.lcmlog" &
+LOGGER=$!
+PIDS+=("$LOGGER")
+sleep 0.5
+"$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/b.tum" --quiet 2>"$OUT/b.daemon.err" &
+DAEMON=$!
+PIDS+=("$DAEMON")
+"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --wait-for VISLAM_STATUS --timeout-ms 1000 \
+  --quiet 2>"$OUT/b.replay.err" &
+REPLAY=$!
+PIDS+=("$REPLAY")
+sleep 3
+kill -TERM "$DAEMON"
+wait_exit "$DAEMON" 10
+check "daemon B exits 0 on SIGTERM mid-run" eq "$WAIT_RC" 0
+kill -INT "$REPLAY" 2>/dev/null
+wait_exit "$REPLAY" 10
+sleep 0.3
+kill -INT "$LOGGER"
+wait_exit "$LOGGER" 5
+"$INSPECT" "$OUT/b.lcmlog" >"$OUT/b.inspect"
+B=$OUT/b.inspect
+LINES_B=$(wc -l <"$OUT/b.tum")
+echo "      stopped after $LINES_B of $FRAMES frames"
+check "some but not all frames processed before SIGTERM" test "$LINES_B" -gt 0 -a "$LINES_B" -lt "$FRAMES"
+check "trajectory B is exactly the first $LINES_B lines of the offline one" \
+  cmp "$OUT/b.tum" <(head -n "$LINES_B" "$OUT/offline.tum")
+check "one trajectory line per published FEATURES pose (none lost)" eq "$(value "$B" pose.features)" "$LINES_B"
+LAST_B=$(tail -n 1 "$OUT/b.tum" | awk '{ split($1, t, "."); printf "%d%06d\n", t[1], t[2] }')
+check "last trajectory line is the last published frame pose" eq "$(value "$B" pose.last_features_utime)" "$LAST_B"
+check "final status published: its poses_out equals the poses on the wire" \
+  eq "$(value "$B" status.last.poses_out)" "$(value "$B" pose.count)"
+check "final status: every input received was a step (steps = imu_in + frames_in, 0 rejected)" \
+  eq "$(value "$B" status.last.steps)/$(value "$B" status.last.inputs_rejected)" \
+  "$(($(value "$B" status.last.imu_in) + $(value "$B" status.last.frames_in)))/0"
+
+echo "== $((SECONDS - START)) s, $FAILS failure(s)"
+[ "$FAILS" -eq 0 ]

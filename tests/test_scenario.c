@@ -1,0 +1,238 @@
+/*
+ * The estimator on synthetic drives with known truth (tools/sim): consistency
+ * (NEES), accuracy against dead reckoning, the window bound and determinism.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "unity.h"
+#include "vislam/vislam.h"
+#include "vl_se3.h"
+#include "vl_sim.h"
+
+#define NEES_RUNS 8
+#define NEES_STEPS 150
+#define NEES_SKIP 10 /* the first steps carry almost no uncertainty to compare with */
+
+static vl_estimator_t est;
+static vl_sim_t sim;
+static vl_stereo_frame_t frame;
+
+typedef struct {
+    double rms_position_error; /**< m, over all steps, no alignment (both start at identity) */
+    double final_position_error; /**< m */
+    double nees_sum[NEES_STEPS]; /**< pose NEES at each step */
+    uint32_t window_max;
+    uint64_t checksum; /**< of every pose, for determinism */
+} run_result_t;
+
+void setUp(void)
+{
+}
+
+void tearDown(void)
+{
+}
+
+/* x^T S^-1 x for a symmetric positive definite 6x6 S (Cholesky); -1 if S is not SPD. */
+static double mahalanobis6(const double S[36], const double x[6])
+{
+    double L[36] = {0};
+    for (int j = 0; j < 6; ++j) {
+        double d = S[6 * j + j];
+        for (int k = 0; k < j; ++k) {
+            d -= L[6 * j + k] * L[6 * j + k];
+        }
+        if (!(d > 0.0)) {
+            return -1.0;
+        }
+        L[6 * j + j] = sqrt(d);
+        for (int i = j + 1; i < 6; ++i) {
+            double v = S[6 * i + j];
+            for (int k = 0; k < j; ++k) {
+                v -= L[6 * i + k] * L[6 * j + k];
+            }
+            L[6 * i + j] = v / L[6 * j + j];
+        }
+    }
+    double w[6], acc = 0.0;
+    for (int i = 0; i < 6; ++i) {
+        double v = x[i];
+        for (int k = 0; k < i; ++k) {
+            v -= L[6 * i + k] * w[k];
+        }
+        w[i] = v / L[6 * i + i];
+        acc += w[i] * w[i];
+    }
+    return acc;
+}
+
+static uint64_t mix(uint64_t h, const void *data, size_t n)
+{
+    const unsigned char *p = (const unsigned char *)data;
+    for (size_t i = 0; i < n; ++i) {
+        h = (h ^ p[i]) * 0x100000001B3ull;
+    }
+    return h;
+}
+
+static void sim_config(vl_sim_config_t *sc, uint64_t noise_seed, uint32_t steps)
+{
+    vl_sim_config_default(sc);
+    sc->num_steps = steps;
+    sc->noise_seed = noise_seed;
+}
+
+static void estimator_config(const vl_sim_t *s, const vl_sim_config_t *sc, vl_config_t *cfg)
+{
+    vl_config_default(cfg);
+    vl_sim_calibration(s, &cfg->calibration);
+    /* The filter is told the simulator's true noise. */
+    cfg->pixel_noise = sc->pixel_noise;
+    cfg->linear_velocity_noise = sc->linear_noise;
+    cfg->angular_velocity_noise = sc->angular_noise;
+}
+
+static void run(const vl_sim_config_t *sc, const vl_config_t *cfg_in, run_result_t *res)
+{
+    memset(res, 0, sizeof(*res));
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, sc));
+    vl_config_t cfg = *cfg_in;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    res->checksum = 0xCBF29CE484222325ull;
+    double sq = 0.0;
+    uint32_t steps = 0;
+    vl_imu_sample_t imu;
+    double R_true[9], p_true[3];
+    while (vl_sim_step(&sim, &imu, &frame, R_true, p_true) == 0) {
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &imu));
+        TEST_ASSERT_TRUE(vl_update(&est, &frame) >= 0);
+        TEST_ASSERT_LESS_OR_EQUAL_UINT32(cfg.max_landmarks, vl_window_size(&est));
+        if (vl_window_size(&est) > res->window_max) {
+            res->window_max = vl_window_size(&est);
+        }
+        vl_pose_t pose;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+        res->checksum = mix(res->checksum, pose.rotation, sizeof(pose.rotation));
+        res->checksum = mix(res->checksum, pose.position, sizeof(pose.position));
+        res->checksum = mix(res->checksum, pose.covariance, sizeof(pose.covariance));
+
+        /* error in the API's convention: T_true = T_hat exp(xi) */
+        double Rt[9], dR[9], dp[3], d[3], xi[6];
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) {
+                Rt[3 * i + j] = pose.rotation[3 * j + i];
+            }
+            d[i] = p_true[i] - pose.position[i];
+        }
+        vl_matmul(Rt, R_true, dR, 3, 3, 3);
+        vl_matmul(Rt, d, dp, 3, 3, 1);
+        vl_se3_log(dR, dp, xi);
+        const double e2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        sq += e2;
+        res->final_position_error = sqrt(e2);
+        if (steps < NEES_STEPS) {
+            res->nees_sum[steps] = (cfg.mode == VL_MODE_IMU_ONLY) ? 0.0 : mahalanobis6(pose.covariance, xi);
+        }
+        steps++;
+    }
+    res->rms_position_error = sqrt(sq / (double)steps);
+}
+
+void test_slam_is_consistent_average_nees_within_chi_square_bounds(void)
+{
+    static run_result_t res;
+    static double anees[NEES_STEPS];
+    memset(anees, 0, sizeof(anees));
+    for (uint64_t r = 0; r < NEES_RUNS; ++r) {
+        vl_sim_config_t sc;
+        vl_config_t cfg;
+        sim_config(&sc, 100 + r, NEES_STEPS);
+        /* The seed data's pixel error (0.26 px median against ground truth). At
+         * 1 px, points under ~10 px of disparity have strongly skewed depth and the
+         * filter turns optimistic: see the README's limits. */
+        sc.pixel_noise = 0.3;
+        TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, &sc));
+        estimator_config(&sim, &sc, &cfg);
+        /* No outliers in the simulation: plain EKF, so nothing but the model is tested. */
+        cfg.gate_chi2 = 0.0;
+        run(&sc, &cfg, &res);
+        for (int k = NEES_SKIP; k < NEES_STEPS; ++k) {
+            TEST_ASSERT_TRUE(res.nees_sum[k] >= 0.0); /* the covariance stayed positive definite */
+            anees[k] += res.nees_sum[k] / NEES_RUNS;
+        }
+    }
+    /* ANEES at one step is chi2(6 N) / N; its two-sided 99% interval for N = 8
+     * (48 dof) is [27.0, 76.2] / 8. The average over steps must lie inside it. */
+    const double lo = 26.99 / NEES_RUNS, hi = 76.15 / NEES_RUNS;
+    double mean = 0.0;
+    uint32_t inside = 0;
+    for (int k = NEES_SKIP; k < NEES_STEPS; ++k) {
+        mean += anees[k];
+        inside += (anees[k] >= lo && anees[k] <= hi);
+    }
+    mean /= (double)(NEES_STEPS - NEES_SKIP);
+    char msg[160];
+    snprintf(msg, sizeof(msg), "average NEES %.3f (6 expected, bounds [%.2f, %.2f]), %u of %d steps inside", mean,
+             lo, hi, (unsigned)inside, NEES_STEPS - NEES_SKIP);
+    printf("%s\n", msg);
+    TEST_ASSERT_TRUE_MESSAGE(mean >= lo && mean <= hi, msg);
+    /* and it holds over the run, not just on average */
+    TEST_ASSERT_TRUE_MESSAGE(inside >= (uint32_t)(0.9 * (NEES_STEPS - NEES_SKIP)), msg);
+}
+
+void test_slam_beats_dead_reckoning(void)
+{
+    static run_result_t slam, dr;
+    vl_sim_config_t sc;
+    vl_config_t cfg;
+    sim_config(&sc, 7, 300);
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, &sc));
+    estimator_config(&sim, &sc, &cfg);
+    run(&sc, &cfg, &slam);
+    cfg.mode = VL_MODE_IMU_ONLY;
+    run(&sc, &cfg, &dr);
+    printf("rms position error: slam %.3f m, dead reckoning %.3f m\n", slam.rms_position_error,
+           dr.rms_position_error);
+    TEST_ASSERT_TRUE(slam.rms_position_error < 0.25 * dr.rms_position_error);
+    TEST_ASSERT_TRUE(slam.final_position_error < dr.final_position_error);
+}
+
+void test_window_never_exceeds_capacity_on_a_drive(void)
+{
+    static run_result_t res;
+    vl_sim_config_t sc;
+    vl_config_t cfg;
+    sim_config(&sc, 3, 120);
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, &sc));
+    estimator_config(&sim, &sc, &cfg);
+    cfg.max_landmarks = 24; /* far fewer than the ~90 tracks per frame */
+    run(&sc, &cfg, &res);
+    TEST_ASSERT_EQUAL_UINT32(24, res.window_max);
+    TEST_ASSERT_TRUE(vl_get_counters(&est)->landmarks_deferred > 0);
+    TEST_ASSERT_EQUAL_UINT32(24, vl_get_counters(&est)->window_peak);
+}
+
+void test_replay_is_bit_identical(void)
+{
+    static run_result_t a, b;
+    vl_sim_config_t sc;
+    vl_config_t cfg;
+    sim_config(&sc, 11, 100);
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, &sc));
+    estimator_config(&sim, &sc, &cfg);
+    run(&sc, &cfg, &a);
+    run(&sc, &cfg, &b);
+    TEST_ASSERT_EQUAL_HEX64(a.checksum, b.checksum);
+}
+
+int main(void)
+{
+    UNITY_BEGIN();
+    RUN_TEST(test_slam_is_consistent_average_nees_within_chi_square_bounds);
+    RUN_TEST(test_slam_beats_dead_reckoning);
+    RUN_TEST(test_window_never_exceeds_capacity_on_a_drive);
+    RUN_TEST(test_replay_is_bit_identical);
+    return UNITY_END();
+}

@@ -1,0 +1,523 @@
+/*
+ * vislam-replay: plays an LCM log over LCM at its recorded rate.
+ *
+ * Every event is sent at an absolute CLOCK_MONOTONIC deadline computed from
+ * its log timestamp (clock_nanosleep TIMER_ABSTIME), so sleeping and sending
+ * costs do not accumulate into drift. --lockstep waits after each feature
+ * frame for the daemon's pose of that frame (same utime, source FEATURES):
+ * the deterministic mode, which also measures the end-to-end latency from
+ * publishing the frame to receiving its pose. The schedule pauses while it
+ * waits, so the spacing of later events is kept.
+ */
+#define _POSIX_C_SOURCE 200809L
+
+#include <errno.h>
+#include <inttypes.h>
+#include <math.h>
+#include <poll.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <lcm/lcm.h>
+
+#include "vl_clock.h"
+#include "vl_latency.h"
+#include "vl_signal.h"
+
+#include "vislam_pose_t.h"
+#include "vislam_stereo_frame_t.h"
+
+#define EXIT_INCOMPLETE 1
+#define EXIT_USAGE 2
+
+#define MAX_FILTER 16
+#define MAX_CHANNELS 32
+#define CHANNEL_MAX 64
+#define PROGRESS_PERIOD_US 250000
+#define MAX_CONSECUTIVE_TIMEOUTS 3
+
+typedef struct {
+    const char *log_path;
+    const char *lcm_url;
+    const char *pose_channel;
+    const char *features_channel;
+    const char *wait_for;
+    const char *summary_json;
+    const char *filter[MAX_FILTER];
+    int num_filter;
+    double speed;
+    int max;
+    int lockstep;
+    long timeout_ms;
+    long linger_ms;
+    int quiet;
+} options_t;
+
+typedef struct {
+    char name[CHANNEL_MAX];
+    uint64_t sent;
+} channel_count_t;
+
+typedef struct {
+    options_t opt;
+    lcm_t *lcm;
+    /* sending */
+    channel_count_t channels[MAX_CHANNELS];
+    int num_channels;
+    uint64_t sent, other_sent, publish_errors, filtered, events_read;
+    int64_t first_log_utime, last_log_utime;
+    /* receiving */
+    uint64_t poses, poses_imu, poses_features, pose_decode_errors;
+    int waiting;
+    int64_t expected_utime;
+    int64_t publish_mono_us;
+    int matched;
+    uint64_t expected, returned, missing;
+    vl_latency_t latency;
+    vislam_pose_t pose_msg;
+    vislam_stereo_frame_t frame_msg;
+    int saw_wait_for;
+} replay_t;
+
+static replay_t g;
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+            "usage: vislam-replay LOG [options]\n"
+            "Publishes the events of an LCM log on their channels at the recorded rate, sleeping to\n"
+            "absolute CLOCK_MONOTONIC deadlines so that it does not drift.\n"
+            "\n"
+            "  --speed X             play X times faster than recorded (default 1)\n"
+            "  --max                 as fast as possible (no sleeping)\n"
+            "  --lockstep            after each frame on the features channel, wait for the pose with\n"
+            "                        that frame's utime and source FEATURES before going on; measures\n"
+            "                        the end-to-end latency (frame published -> pose received)\n"
+            "  --timeout-ms N        lockstep and --wait-for: how long to wait (default 5000); after %d\n"
+            "                        lockstep timeouts in a row the replay gives up\n"
+            "  --channels A,B,...    publish only these channels (default: every channel in the log)\n"
+            "  --features-channel C  frames that lockstep waits for (default VISLAM_FEATURES)\n"
+            "  --pose-channel C      poses counted and awaited (default VISLAM_POSE)\n"
+            "  --wait-for C          before playing, wait until a message arrives on C (e.g.\n"
+            "                        VISLAM_STATUS: the daemon publishes one as soon as it is up)\n"
+            "  --linger-ms N         after the last event, keep counting poses for N ms (default 500)\n"
+            "  --lcm-url URL         LCM provider (default: $LCM_DEFAULT_URL, else LCM's default)\n"
+            "  --summary-json FILE   also write the summary as JSON\n"
+            "  --quiet               no progress line and no summary on stderr\n"
+            "  --help                this text\n"
+            "\n"
+            "A progress line is shown when stderr is a terminal. The summary gives the messages sent,\n"
+            "poses received and, in lockstep, the end-to-end latency percentiles.\n"
+            "Exit status: 0 the log was played (and, in lockstep, every expected pose came back);\n"
+            "1 incomplete (missing poses, publish errors, nothing on --wait-for, interrupted);\n"
+            "2 usage error, unreadable log or LCM unavailable.\n",
+            MAX_CONSECUTIVE_TIMEOUTS);
+}
+
+static int parse_args(int argc, char **argv, options_t *o)
+{
+    memset(o, 0, sizeof(*o));
+    o->speed = 1.0;
+    o->timeout_ms = 5000;
+    o->linger_ms = 500;
+    o->pose_channel = "VISLAM_POSE";
+    o->features_channel = "VISLAM_FEATURES";
+    static char filter_buf[1024];
+    for (int i = 1; i < argc; ++i) {
+        const char *a = argv[i];
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            usage(stdout);
+            exit(0);
+        } else if (strcmp(a, "--max") == 0) {
+            o->max = 1;
+            continue;
+        } else if (strcmp(a, "--lockstep") == 0) {
+            o->lockstep = 1;
+            continue;
+        } else if (strcmp(a, "--quiet") == 0) {
+            o->quiet = 1;
+            continue;
+        } else if (a[0] != '-' || a[1] == '\0') {
+            if (o->log_path != NULL) {
+                fprintf(stderr, "vislam-replay: more than one log given (%s, %s)\n", o->log_path, a);
+                return -1;
+            }
+            o->log_path = a;
+            continue;
+        }
+        static const char *const with_value[] = {"--speed",        "--timeout-ms",   "--linger-ms",
+                                                 "--channels",     "--lcm-url",      "--pose-channel",
+                                                 "--features-channel", "--wait-for", "--summary-json"};
+        int known = 0;
+        for (size_t k = 0; k < sizeof(with_value) / sizeof(with_value[0]); ++k) {
+            known |= strcmp(a, with_value[k]) == 0;
+        }
+        if (!known) {
+            fprintf(stderr, "vislam-replay: unknown option %s (see --help)\n", a);
+            return -1;
+        }
+        if (i + 1 >= argc) {
+            fprintf(stderr, "vislam-replay: %s needs a value\n", a);
+            return -1;
+        }
+        const char *v = argv[++i];
+        char *end = NULL;
+        errno = 0;
+        if (strcmp(a, "--speed") == 0) {
+            o->speed = strtod(v, &end);
+            if (end == v || *end != '\0' || errno != 0 || !(o->speed > 0.0) || !isfinite(o->speed)) {
+                fprintf(stderr, "vislam-replay: --speed %s: expected a number > 0\n", v);
+                return -1;
+            }
+        } else if (strcmp(a, "--timeout-ms") == 0 || strcmp(a, "--linger-ms") == 0) {
+            const long n = strtol(v, &end, 10);
+            if (end == v || *end != '\0' || errno != 0 || n < 0 || n > 3600000L) {
+                fprintf(stderr, "vislam-replay: %s %s: expected an integer in 0..3600000\n", a, v);
+                return -1;
+            }
+            *(strcmp(a, "--timeout-ms") == 0 ? &o->timeout_ms : &o->linger_ms) = n;
+        } else if (strcmp(a, "--channels") == 0) {
+            snprintf(filter_buf, sizeof(filter_buf), "%s", v);
+            o->num_filter = 0;
+            for (char *tok = strtok(filter_buf, ","); tok != NULL; tok = strtok(NULL, ",")) {
+                if (o->num_filter == MAX_FILTER) {
+                    fprintf(stderr, "vislam-replay: --channels: at most %d channels\n", MAX_FILTER);
+                    return -1;
+                }
+                o->filter[o->num_filter++] = tok;
+            }
+            if (o->num_filter == 0) {
+                fprintf(stderr, "vislam-replay: --channels: no channel given\n");
+                return -1;
+            }
+        } else if (strcmp(a, "--lcm-url") == 0) {
+            o->lcm_url = v;
+        } else if (strcmp(a, "--pose-channel") == 0) {
+            o->pose_channel = v;
+        } else if (strcmp(a, "--features-channel") == 0) {
+            o->features_channel = v;
+        } else if (strcmp(a, "--wait-for") == 0) {
+            o->wait_for = v;
+        } else if (strcmp(a, "--summary-json") == 0) {
+            o->summary_json = v;
+        } else {
+            fprintf(stderr, "vislam-replay: unknown option %s (see --help)\n", a);
+            return -1;
+        }
+    }
+    if (o->log_path == NULL) {
+        fprintf(stderr, "vislam-replay: no LOG given (see --help)\n");
+        return -1;
+    }
+    if (o->max && o->speed != 1.0) {
+        fprintf(stderr, "vislam-replay: --max and --speed exclude each other\n");
+        return -1;
+    }
+    return 0;
+}
+
+static int channel_selected(const options_t *o, const char *channel)
+{
+    if (o->num_filter == 0) {
+        return 1;
+    }
+    for (int i = 0; i < o->num_filter; ++i) {
+        if (strcmp(o->filter[i], channel) == 0) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
+static void count_sent(replay_t *r, const char *channel)
+{
+    r->sent++;
+    for (int i = 0; i < r->num_channels; ++i) {
+        if (strcmp(r->channels[i].name, channel) == 0) {
+            r->channels[i].sent++;
+            return;
+        }
+    }
+    if (r->num_channels < MAX_CHANNELS) {
+        channel_count_t *c = &r->channels[r->num_channels++];
+        snprintf(c->name, sizeof(c->name), "%s", channel);
+        c->sent = 1;
+    } else {
+        r->other_sent++;
+    }
+}
+
+/* ---- receiving ---- */
+
+static void on_pose(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    (void)channel;
+    replay_t *r = (replay_t *)user;
+    const int64_t now = vl_clock_monotonic_us();
+    if (vislam_pose_t_decode(rbuf->data, 0, (int)rbuf->data_size, &r->pose_msg) < 0) {
+        r->pose_decode_errors++;
+        return;
+    }
+    r->poses++;
+    if (r->pose_msg.source == VISLAM_POSE_T_SOURCE_FEATURES) {
+        r->poses_features++;
+    } else if (r->pose_msg.source == VISLAM_POSE_T_SOURCE_IMU) {
+        r->poses_imu++;
+    }
+    if (r->waiting && !r->matched && r->pose_msg.source == VISLAM_POSE_T_SOURCE_FEATURES &&
+        r->pose_msg.utime == r->expected_utime) {
+        r->matched = 1;
+        vl_latency_record(&r->latency, now - r->publish_mono_us);
+    }
+}
+
+static void on_wait_for(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    (void)rbuf;
+    (void)channel;
+    ((replay_t *)user)->saw_wait_for = 1;
+}
+
+/* Handles whatever has arrived, without blocking. */
+static void poll_incoming(replay_t *r)
+{
+    const int fd = lcm_get_fileno(r->lcm);
+    for (int i = 0; i < 10000; ++i) {
+        struct pollfd p = {fd, POLLIN, 0};
+        if (poll(&p, 1, 0) != 1 || !(p.revents & POLLIN) || lcm_handle(r->lcm) != 0) {
+            return;
+        }
+    }
+}
+
+/* Handles messages until *flag is set, the deadline passes or a stop is requested. */
+static int wait_until_flag(replay_t *r, const int *flag, int64_t deadline_us)
+{
+    while (!*flag && !vl_signal_stop_requested()) {
+        const int64_t left = deadline_us - vl_clock_monotonic_us();
+        if (left <= 0) {
+            break;
+        }
+        const int ms = (int)((left + 999) / 1000);
+        lcm_handle_timeout(r->lcm, ms > 100 ? 100 : ms);
+    }
+    return *flag;
+}
+
+/* ---- progress and summary ---- */
+
+static void progress(const replay_t *r, long pos, long size, int final)
+{
+    const double log_s = (double)(r->last_log_utime - r->first_log_utime) * 1e-6;
+    fprintf(stderr, "\rvislam-replay: %5.1f%%  log %8.2f s  sent %8" PRIu64 "  poses %8" PRIu64 "%s",
+            size > 0 ? 100.0 * (double)pos / (double)size : 0.0, log_s, r->sent, r->poses, final ? "\n" : "");
+}
+
+static void print_summary(const replay_t *r, double wall_s, int interrupted)
+{
+    const double log_s = (double)(r->last_log_utime - r->first_log_utime) * 1e-6;
+    fprintf(stderr, "vislam-replay: %s: %" PRIu64 " messages sent in %.2f s (log span %.2f s, %.2fx)%s\n",
+            r->opt.log_path, r->sent, wall_s, log_s, wall_s > 0 ? log_s / wall_s : 0.0,
+            interrupted ? " - interrupted" : "");
+    for (int i = 0; i < r->num_channels; ++i) {
+        fprintf(stderr, "  %-24s %8" PRIu64 "\n", r->channels[i].name, r->channels[i].sent);
+    }
+    if (r->filtered != 0) {
+        fprintf(stderr, "  (%" PRIu64 " events left out by --channels)\n", r->filtered);
+    }
+    if (r->publish_errors != 0) {
+        fprintf(stderr, "  publish errors: %" PRIu64 "\n", r->publish_errors);
+    }
+    fprintf(stderr, "  poses received on %s: %" PRIu64 " (imu %" PRIu64 ", features %" PRIu64 ")%s\n",
+            r->opt.pose_channel, r->poses, r->poses_imu, r->poses_features,
+            r->pose_decode_errors != 0 ? " plus undecodable ones" : "");
+    if (r->opt.lockstep) {
+        fprintf(stderr, "  lockstep: %" PRIu64 " frames, %" PRIu64 " poses came back, %" PRIu64 " missing\n",
+                r->expected, r->returned, r->missing);
+        vl_latency_print(&r->latency, stderr, "  end-to-end latency (frame published -> pose received)");
+    }
+}
+
+static int write_json(const replay_t *r, double wall_s, int interrupted)
+{
+    FILE *f = fopen(r->opt.summary_json, "w");
+    if (f == NULL) {
+        fprintf(stderr, "vislam-replay: cannot write %s: %s\n", r->opt.summary_json, strerror(errno));
+        return -1;
+    }
+    fprintf(f, "{\n  \"messages_sent\": %" PRIu64 ",\n  \"channels\": {", r->sent);
+    for (int i = 0; i < r->num_channels; ++i) {
+        fprintf(f, "%s\n    \"%s\": %" PRIu64, i == 0 ? "" : ",", r->channels[i].name, r->channels[i].sent);
+    }
+    fprintf(f, "\n  },\n  \"publish_errors\": %" PRIu64 ",\n", r->publish_errors);
+    fprintf(f, "  \"poses_received\": %" PRIu64 ",\n  \"poses_imu\": %" PRIu64 ",\n  \"poses_features\": %" PRIu64
+               ",\n",
+            r->poses, r->poses_imu, r->poses_features);
+    fprintf(f, "  \"lockstep\": %s,\n  \"frames_expected\": %" PRIu64 ",\n  \"frames_returned\": %" PRIu64
+               ",\n  \"frames_missing\": %" PRIu64 ",\n",
+            r->opt.lockstep ? "true" : "false", r->expected, r->returned, r->missing);
+    fprintf(f,
+            "  \"latency_us\": {\"count\": %" PRIu64 ", \"p50\": %" PRId64 ", \"p90\": %" PRId64 ", \"p99\": %" PRId64
+            ", \"max\": %" PRId64 ", \"mean\": %.1f},\n",
+            vl_latency_count(&r->latency), vl_latency_percentile(&r->latency, 50.0),
+            vl_latency_percentile(&r->latency, 90.0), vl_latency_percentile(&r->latency, 99.0),
+            vl_latency_max(&r->latency), vl_latency_mean(&r->latency));
+    fprintf(f, "  \"wall_s\": %.6f,\n  \"log_s\": %.6f,\n  \"interrupted\": %s\n}\n", wall_s,
+            (double)(r->last_log_utime - r->first_log_utime) * 1e-6, interrupted ? "true" : "false");
+    const int bad = ferror(f);
+    if (fclose(f) != 0 || bad) {
+        fprintf(stderr, "vislam-replay: write error on %s\n", r->opt.summary_json);
+        return -1;
+    }
+    return 0;
+}
+
+/* ---- main ---- */
+
+int main(int argc, char **argv)
+{
+    replay_t *r = &g;
+    if (parse_args(argc, argv, &r->opt) != 0) {
+        return EXIT_USAGE;
+    }
+    const options_t *o = &r->opt;
+    vl_latency_reset(&r->latency);
+
+    lcm_eventlog_t *log = lcm_eventlog_create(o->log_path, "r");
+    if (log == NULL) {
+        fprintf(stderr, "vislam-replay: cannot read %s: %s\n", o->log_path, strerror(errno));
+        return EXIT_USAGE;
+    }
+    struct stat st;
+    const long log_size = stat(o->log_path, &st) == 0 ? (long)st.st_size : -1;
+
+    if (vl_signal_install() != 0) {
+        fprintf(stderr, "vislam-replay: cannot install signal handlers: %s\n", strerror(errno));
+    }
+    r->lcm = lcm_create(o->lcm_url);
+    if (r->lcm == NULL) {
+        fprintf(stderr, "vislam-replay: cannot create LCM (url %s)\n", o->lcm_url != NULL ? o->lcm_url : "default");
+        lcm_eventlog_destroy(log);
+        return EXIT_USAGE;
+    }
+    lcm_subscribe(r->lcm, o->pose_channel, on_pose, r);
+
+    int incomplete = 0;
+    if (o->wait_for != NULL) {
+        lcm_subscribe(r->lcm, o->wait_for, on_wait_for, r);
+        if (!wait_until_flag(r, &r->saw_wait_for, vl_clock_monotonic_us() + o->timeout_ms * 1000)) {
+            fprintf(stderr, "vislam-replay: nothing on %s within %ld ms%s\n", o->wait_for, o->timeout_ms,
+                    vl_signal_stop_requested() ? " (interrupted)" : "; is the daemon running on this LCM url?");
+            lcm_destroy(r->lcm);
+            lcm_eventlog_destroy(log);
+            return EXIT_INCOMPLETE;
+        }
+    }
+
+    const int show_progress = !o->quiet && isatty(STDERR_FILENO);
+    const int64_t wall_start = vl_clock_monotonic_us();
+    int64_t start = 0;           /* monotonic time of the first event */
+    int64_t paused = 0;          /* us the schedule waited on lockstep */
+    int64_t next_progress = wall_start;
+    int have_first = 0;
+    int consecutive_timeouts = 0;
+    lcm_eventlog_event_t *ev;
+    while (!vl_signal_stop_requested() && (ev = lcm_eventlog_read_next_event(log)) != NULL) {
+        r->events_read++;
+        if (!channel_selected(o, ev->channel)) {
+            r->filtered++;
+            lcm_eventlog_free_event(ev);
+            continue;
+        }
+        if (!have_first) {
+            have_first = 1;
+            r->first_log_utime = ev->timestamp;
+            start = vl_clock_monotonic_us();
+        }
+        r->last_log_utime = ev->timestamp;
+        if (!o->max) {
+            const double offset_us = (double)(ev->timestamp - r->first_log_utime) / o->speed;
+            const int64_t deadline = start + paused + (int64_t)llround(offset_us);
+            poll_incoming(r);
+            while (vl_clock_sleep_until_us(deadline) != 0 && !vl_signal_stop_requested()) {
+            }
+            if (vl_signal_stop_requested()) {
+                lcm_eventlog_free_event(ev);
+                break;
+            }
+        }
+        const int is_frame = o->lockstep && strcmp(ev->channel, o->features_channel) == 0;
+        int64_t frame_utime = 0;
+        if (is_frame) {
+            if (vislam_stereo_frame_t_decode(ev->data, 0, ev->datalen, &r->frame_msg) < 0) {
+                fprintf(stderr, "vislam-replay: event %" PRId64 " on %s is not a vislam.stereo_frame_t; not awaited\n",
+                        ev->eventnum, ev->channel);
+            } else {
+                frame_utime = r->frame_msg.utime;
+            }
+        }
+        r->publish_mono_us = vl_clock_monotonic_us();
+        if (is_frame) {
+            r->waiting = 1;
+            r->matched = 0;
+            r->expected_utime = frame_utime;
+        }
+        if (lcm_publish(r->lcm, ev->channel, ev->data, (unsigned int)ev->datalen) != 0) {
+            r->publish_errors++;
+        }
+        count_sent(r, ev->channel);
+        lcm_eventlog_free_event(ev);
+        if (is_frame) {
+            r->expected++;
+            const int64_t t_wait = vl_clock_monotonic_us();
+            if (wait_until_flag(r, &r->matched, t_wait + o->timeout_ms * 1000)) {
+                r->returned++;
+                consecutive_timeouts = 0;
+            } else if (!vl_signal_stop_requested()) {
+                r->missing++;
+                fprintf(stderr, "%svislam-replay: no pose for the frame at utime %" PRId64 " within %ld ms\n",
+                        show_progress ? "\n" : "", frame_utime, o->timeout_ms);
+                if (++consecutive_timeouts >= MAX_CONSECUTIVE_TIMEOUTS) {
+                    fprintf(stderr, "vislam-replay: %d timeouts in a row; giving up\n", consecutive_timeouts);
+                    incomplete = 1;
+                    break;
+                }
+            }
+            r->waiting = 0;
+            paused += vl_clock_monotonic_us() - t_wait;
+        }
+        if (show_progress) {
+            const int64_t now = vl_clock_monotonic_us();
+            if (now >= next_progress) {
+                progress(r, log->f != NULL ? ftell(log->f) : 0, log_size, 0);
+                next_progress = now + PROGRESS_PERIOD_US;
+            }
+        }
+    }
+    const int interrupted = vl_signal_stop_requested();
+    /* Playing time, without the wait for the last poses. */
+    const double wall_s = (double)(vl_clock_monotonic_us() - wall_start) * 1e-6;
+    /* Poses of the last inputs may still be on their way. */
+    int never = 0;
+    wait_until_flag(r, &never, vl_clock_monotonic_us() + (interrupted ? 0 : o->linger_ms * 1000));
+    poll_incoming(r);
+    if (show_progress) {
+        progress(r, log_size, log_size, 1);
+    }
+    if (!o->quiet) {
+        print_summary(r, wall_s, interrupted);
+    }
+    if (o->summary_json != NULL && write_json(r, wall_s, interrupted) != 0) {
+        incomplete = 1;
+    }
+    lcm_destroy(r->lcm);
+    lcm_eventlog_destroy(log);
+    if (interrupted || r->publish_errors != 0 || r->missing != 0 || incomplete) {
+        return EXIT_INCOMPLETE;
+    }
+    return 0;
+}
