@@ -150,6 +150,8 @@ const char *vl_status_str(vl_status_t status)
         return "innovation covariance not positive definite; update refused";
     case VL_ERR_CAPACITY:
         return "output buffer too small";
+    case VL_ERR_MISALIGNED:
+        return "estimator not aligned to VL_ESTIMATOR_ALIGN bytes";
     }
     return "unknown status";
 }

@@ -628,6 +628,9 @@ vl_status_t vl_init(vl_estimator_t *e, const vl_config_t *cfg)
     if (e == NULL || cfg == NULL) {
         return VL_ERR_NULL;
     }
+    if (((uintptr_t)(const void *)e % VL_ESTIMATOR_ALIGN) != 0) {
+        return VL_ERR_MISALIGNED;
+    }
     vl_status_t st = vl_config_check(cfg);
     if (st != VL_OK) {
         return st;

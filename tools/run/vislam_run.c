@@ -580,7 +580,14 @@ int main(int argc, char **argv)
     cfg.log_user = &logger;
 
     /* Several MB: heap, once. */
-    vl_estimator_t *est = (vl_estimator_t *)calloc(1, sizeof(*est));
+    /* aligned as vl_init requires: see VL_ESTIMATOR_ALIGN */
+    const size_t est_bytes = (sizeof(vl_estimator_t) + VL_ESTIMATOR_ALIGN - 1) / VL_ESTIMATOR_ALIGN * VL_ESTIMATOR_ALIGN;
+    void *est_mem = NULL;
+    vl_estimator_t *est = NULL;
+    if (posix_memalign(&est_mem, VL_ESTIMATOR_ALIGN, est_bytes) == 0) {
+        memset(est_mem, 0, est_bytes);
+        est = (vl_estimator_t *)est_mem;
+    }
     if (est == NULL) {
         fprintf(stderr, "vislam-run: cannot allocate the estimator (%zu bytes)\n", sizeof(*est));
         return 1;

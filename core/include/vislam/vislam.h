@@ -39,6 +39,18 @@ extern "C" {
 #define VL_MAX_FRAME_FEATURES 256
 #endif
 
+/**
+ * Alignment of vl_estimator_t, bytes. Eigen's vectorized loops split their work
+ * by the address of the data; a fixed alignment makes every caller's copy of the
+ * estimator compute bit-identical results (vl_init refuses other addresses).
+ */
+#define VL_ESTIMATOR_ALIGN 64
+#if defined(__GNUC__) || defined(__clang__)
+#define VL_ALIGNED(n) __attribute__((aligned(n)))
+#else
+#error "vislam needs a compiler with __attribute__((aligned))"
+#endif
+
 /** Pose (6) and velocity-input offsets (6) lead the state vector. */
 #define VL_CORE_DIM 12
 /** Largest joint state dimension. */
@@ -59,7 +71,9 @@ typedef enum {
                                            or earlier than the state; the sample was rejected. */
     VL_ERR_NOT_POSITIVE_DEFINITE = -6,/**< The innovation covariance failed its Cholesky factorization;
                                            the update was not applied. */
-    VL_ERR_CAPACITY = -7              /**< Output buffer too small (vl_get_landmarks). */
+    VL_ERR_CAPACITY = -7,             /**< Output buffer too small (vl_get_landmarks). */
+    VL_ERR_MISALIGNED = -8            /**< The estimator is not VL_ESTIMATOR_ALIGN-byte aligned (heap
+                                           copies need aligned_alloc; static ones are aligned). */
 } vl_status_t;
 
 /** What the estimator does with its inputs (the seed project's three parts). */
@@ -266,7 +280,7 @@ typedef struct {
     vl_pending_track_t pending[VL_MAX_PENDING];
 
     /** Joint covariance, column-major with leading dimension VL_STATE_DIM_MAX. */
-    double P[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX];
+    double P[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX] VL_ALIGNED(VL_ESTIMATOR_ALIGN);
 
     /** Update workspaces (P H^T, then the whitened gain; innovation covariance). */
     double work_PHt[VL_STATE_DIM_MAX * VL_OBS_DIM * VL_MAX_LANDMARKS];
