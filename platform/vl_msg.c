@@ -120,44 +120,6 @@ vl_msg_status_t vl_msg_from_calibration(const vl_calibration_t *calib, int64_t u
     return VL_MSG_OK;
 }
 
-void vl_msg_rotation_to_quaternion(const double R[9], double q[4])
-{
-    /* Shepperd: branch on the largest of w, x, y, z to avoid dividing by a small number. */
-    const double trace = R[0] + R[4] + R[8];
-    double w, x, y, z;
-    if (trace >= R[0] && trace >= R[4] && trace >= R[8]) {
-        const double s = 2.0 * sqrt(1.0 + trace);
-        w = 0.25 * s;
-        x = (R[7] - R[5]) / s;
-        y = (R[2] - R[6]) / s;
-        z = (R[3] - R[1]) / s;
-    } else if (R[0] >= R[4] && R[0] >= R[8]) {
-        const double s = 2.0 * sqrt(1.0 + R[0] - R[4] - R[8]);
-        w = (R[7] - R[5]) / s;
-        x = 0.25 * s;
-        y = (R[1] + R[3]) / s;
-        z = (R[2] + R[6]) / s;
-    } else if (R[4] >= R[8]) {
-        const double s = 2.0 * sqrt(1.0 + R[4] - R[0] - R[8]);
-        w = (R[2] - R[6]) / s;
-        x = (R[1] + R[3]) / s;
-        y = 0.25 * s;
-        z = (R[5] + R[7]) / s;
-    } else {
-        const double s = 2.0 * sqrt(1.0 + R[8] - R[0] - R[4]);
-        w = (R[3] - R[1]) / s;
-        x = (R[2] + R[6]) / s;
-        y = (R[5] + R[7]) / s;
-        z = 0.25 * s;
-    }
-    const double norm = sqrt(w * w + x * x + y * y + z * z);
-    const double sign = w < 0.0 ? -1.0 : 1.0;
-    q[0] = sign * w / norm;
-    q[1] = sign * x / norm;
-    q[2] = sign * y / norm;
-    q[3] = sign * z / norm;
-}
-
 vl_msg_status_t vl_msg_from_pose(const vl_pose_t *pose, int8_t source, int64_t sequence, vislam_pose_t *out)
 {
     if (pose == NULL || out == NULL) {
@@ -166,7 +128,7 @@ vl_msg_status_t vl_msg_from_pose(const vl_pose_t *pose, int8_t source, int64_t s
     out->utime = pose->utime;
     out->source = source;
     out->sequence = sequence;
-    vl_msg_rotation_to_quaternion(pose->rotation, out->orientation);
+    vl_rotation_to_quaternion(pose->rotation, out->orientation);
     for (int i = 0; i < 3; ++i) {
         out->position[i] = pose->position[i];
         out->linear_velocity[i] = pose->linear_velocity[i];
@@ -182,7 +144,7 @@ vl_msg_status_t vl_msg_from_pose_bot(const vl_pose_t *pose, bot_core_pose_t *out
         return VL_MSG_ERR_NULL;
     }
     out->utime = pose->utime;
-    vl_msg_rotation_to_quaternion(pose->rotation, out->orientation);
+    vl_rotation_to_quaternion(pose->rotation, out->orientation);
     for (int i = 0; i < 3; ++i) {
         out->pos[i] = pose->position[i];
         out->vel[i] = pose->linear_velocity[i];
@@ -190,4 +152,17 @@ vl_msg_status_t vl_msg_from_pose_bot(const vl_pose_t *pose, bot_core_pose_t *out
         out->accel[i] = 0.0;
     }
     return VL_MSG_OK;
+}
+
+int vl_calibration_equal(const vl_calibration_t *a, const vl_calibration_t *b)
+{
+    if (a->fx != b->fx || a->fy != b->fy || a->cx != b->cx || a->cy != b->cy || a->baseline != b->baseline) {
+        return 0;
+    }
+    for (int i = 0; i < 16; ++i) {
+        if (a->cam_T_imu[i] != b->cam_T_imu[i]) {
+            return 0;
+        }
+    }
+    return 1;
 }

@@ -58,11 +58,8 @@ vl_msg_status_t vl_msg_to_calibration(const vislam_calibration_t *msg, vl_calibr
 /** Copies a core calibration into a message stamped @p utime (us). */
 vl_msg_status_t vl_msg_from_calibration(const vl_calibration_t *calib, int64_t utime, vislam_calibration_t *out);
 
-/**
- * Converts a row-major rotation matrix to a unit quaternion (w, x, y, z)
- * with w >= 0, so equal rotations always print equal.
- */
-void vl_msg_rotation_to_quaternion(const double R[9], double q_wxyz[4]);
+/** 1 when two calibrations are equal in every value, else 0. */
+int vl_calibration_equal(const vl_calibration_t *a, const vl_calibration_t *b);
 
 /**
  * Fills a vislam pose message.

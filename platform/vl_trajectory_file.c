@@ -11,7 +11,7 @@ int vl_trajectory_format_line(char *buf, size_t len, int64_t utime, const vl_pos
 {
     double q[4];
     /* The conversion the pose messages use, so every output prints the same quaternion. */
-    vl_msg_rotation_to_quaternion(pose->rotation, q);
+    vl_rotation_to_quaternion(pose->rotation, q);
     /* Seconds printed exactly from the integer microseconds. */
     const char *sign = utime < 0 ? "-" : "";
     const uint64_t mag = utime < 0 ? (uint64_t)0 - (uint64_t)utime : (uint64_t)utime;

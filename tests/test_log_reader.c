@@ -378,7 +378,7 @@ static void axis_angle(const double a[3], double th, double R[9])
     R[8] = c + a[2] * a[2] * v;
 }
 
-void test_vl_msg_rotation_to_quaternion_matches_axis_angle(void)
+void test_vl_rotation_to_quaternion_matches_axis_angle(void)
 {
     const double n = 1.0 / sqrt(14.0);
     const double axis[3] = {1.0 * n, -2.0 * n, 3.0 * n};
@@ -387,7 +387,7 @@ void test_vl_msg_rotation_to_quaternion_matches_axis_angle(void)
     for (int k = 0; k < 5; ++k) {
         double R[9], q[4];
         axis_angle(axis, angles[k], R);
-        vl_msg_rotation_to_quaternion(R, q);
+        vl_rotation_to_quaternion(R, q);
         double h = angles[k] / 2.0;
         TEST_ASSERT_DOUBLE_WITHIN(1e-9, cos(h), q[0]);
         for (int i = 0; i < 3; ++i) {
@@ -397,7 +397,7 @@ void test_vl_msg_rotation_to_quaternion_matches_axis_angle(void)
     /* 180 degrees about x: w = 0, x = +-1 */
     const double Rx[9] = {1, 0, 0, 0, -1, 0, 0, 0, -1};
     double q[4];
-    vl_msg_rotation_to_quaternion(Rx, q);
+    vl_rotation_to_quaternion(Rx, q);
     TEST_ASSERT_DOUBLE_WITHIN(1e-12, 0.0, q[0]);
     TEST_ASSERT_DOUBLE_WITHIN(1e-12, 1.0, fabs(q[1]));
 }
@@ -450,7 +450,7 @@ int main(void)
     RUN_TEST(test_vl_msg_to_stereo_frame_clamps_bad_counts);
     RUN_TEST(test_vl_msg_frame_round_trip);
     RUN_TEST(test_vl_msg_calibration_round_trip);
-    RUN_TEST(test_vl_msg_rotation_to_quaternion_matches_axis_angle);
+    RUN_TEST(test_vl_rotation_to_quaternion_matches_axis_angle);
     RUN_TEST(test_vl_msg_from_pose_fills_both_messages);
     return UNITY_END();
 }

@@ -7,6 +7,7 @@
  * moderate arguments used), group identities, and central finite differences.
  */
 #include "unity.h"
+#include "vislam/vislam.h"
 #include "vl_se3.h"
 
 #include <math.h>

@@ -83,6 +83,22 @@ static const double *landmark_point(const vl_estimator_t *e, uint32_t slot)
 }
 
 /*
+ * A world point in the IMU frame (b = R^T (p_w - p)) and the left camera frame
+ * (c = Rc b + tc). Returns 0 when it is in front of the camera.
+ */
+static int camera_point(const vl_estimator_t *e, const double Rc[9], const double tc[3], const double pw[3],
+                        double b[3], double c[3])
+{
+    const double d[3] = {pw[0] - e->p[0], pw[1] - e->p[1], pw[2] - e->p[2]};
+    vl_matmul_at(e->R, d, b, 3, 3, 1);
+    vl_matmul(Rc, b, c, 3, 3, 1);
+    for (int i = 0; i < 3; ++i) {
+        c[i] += tc[i];
+    }
+    return (c[2] > 1e-3) ? 0 : -1;
+}
+
+/*
  * Predicted compressed observation of a world point, d y / d xi (pose, 3x6) and
  * d y / d p_w (3x3). Returns 0 when the point is in front of the camera.
  */
@@ -90,18 +106,9 @@ static int project_world_point(const vl_estimator_t *e, const double pw[3], doub
                                double dy_dpw[9])
 {
     const vl_calibration_t *cal = &e->cfg.calibration;
-    double Rc[9], tc[3];
+    double Rc[9], tc[3], b[3], c[3];
     camera_extrinsics(cal, Rc, tc);
-
-    /* body point b = R^T (p_w - p), camera point c = Rc b + tc */
-    double d[3] = {pw[0] - e->p[0], pw[1] - e->p[1], pw[2] - e->p[2]};
-    double b[3], c[3];
-    vl_matmul_at(e->R, d, b, 3, 3, 1);
-    vl_matmul(Rc, b, c, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        c[i] += tc[i];
-    }
-    if (!(c[2] > 1e-3)) {
+    if (camera_point(e, Rc, tc, pw, b, c) != 0) {
         return -1;
     }
     double dy_dc[9];
@@ -407,16 +414,9 @@ static void pending_compact(vl_estimator_t *e)
 static int make_row(const vl_estimator_t *e, uint32_t slot, const vl_stereo_obs_t *o, vl_la_obs_t *row)
 {
     const vl_calibration_t *cal = &e->cfg.calibration;
-    const double *l = landmark_point(e, slot);
     double Rc[9], tc[3], b[3], c[3], dy_dc[9], y_pred[3], y[3], RcRt[9];
     camera_extrinsics(cal, Rc, tc);
-    const double d[3] = {l[0] - e->p[0], l[1] - e->p[1], l[2] - e->p[2]};
-    vl_matmul_at(e->R, d, b, 3, 3, 1);
-    vl_matmul(Rc, b, c, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        c[i] += tc[i];
-    }
-    if (!(c[2] > 1e-3)) {
+    if (camera_point(e, Rc, tc, landmark_point(e, slot), b, c) != 0) {
         return -1;
     }
     vl_stereo_project(cal, c, y_pred, dy_dc);

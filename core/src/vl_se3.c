@@ -9,6 +9,8 @@
  */
 #include "vl_se3.h"
 
+#include "vislam/vislam.h"
+
 #include <math.h>
 
 /* Below this angle (rad) every coefficient comes from its Taylor series.

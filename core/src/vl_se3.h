@@ -55,9 +55,6 @@ void vl_matmul_bt(const double *A, const double *B, double *C, int r, int k, int
 /** C = A^T B for row-major A (k x r), B (k x c). C must not alias A or B. */
 void vl_matmul_at(const double *A, const double *B, double *C, int r, int k, int c);
 
-/** Unit quaternion [w, x, y, z] (w >= 0) of a rotation matrix. */
-void vl_rotation_to_quaternion(const double R[9], double q[4]);
-
 /** Rotation matrix of a unit quaternion [w, x, y, z]. */
 void vl_quaternion_to_rotation(const double q[4], double R[9]);
 

@@ -317,26 +317,13 @@ static int make_channels(daemon_t *d)
 
 /* ---- calibration (vislam-run's rules) ---- */
 
-static int calibration_equal(const vl_calibration_t *a, const vl_calibration_t *b)
-{
-    if (a->fx != b->fx || a->fy != b->fy || a->cx != b->cx || a->cy != b->cy || a->baseline != b->baseline) {
-        return 0;
-    }
-    for (int i = 0; i < 16; ++i) {
-        if (a->cam_T_imu[i] != b->cam_T_imu[i]) {
-            return 0;
-        }
-    }
-    return 1;
-}
-
 static void apply_calibration(daemon_t *d, const vl_calibration_t *calib)
 {
     if (d->info.override_log) {
         d->n.calib_ignored++;
         return;
     }
-    if (d->initialized && calibration_equal(&d->cfg.calibration, calib)) {
+    if (d->initialized && vl_calibration_equal(&d->cfg.calibration, calib)) {
         if (strcmp(d->calib_source, "log") != 0) {
             d->calib_source = "log";
             d->n.calib_used++;

@@ -534,19 +534,6 @@ static int build_config(const options_t *o, vl_config_t *cfg, vl_config_file_inf
     return 0;
 }
 
-static int calibration_equal(const vl_calibration_t *a, const vl_calibration_t *b)
-{
-    if (a->fx != b->fx || a->fy != b->fy || a->cx != b->cx || a->cy != b->cy || a->baseline != b->baseline) {
-        return 0;
-    }
-    for (int i = 0; i < 16; ++i) {
-        if (a->cam_T_imu[i] != b->cam_T_imu[i]) {
-            return 0;
-        }
-    }
-    return 1;
-}
-
 /* ---- main ---- */
 
 int main(int argc, char **argv)
@@ -633,7 +620,7 @@ int main(int argc, char **argv)
                 run.calibrations_ignored++;
                 break;
             }
-            if (initialized && calibration_equal(&cfg.calibration, &ev.calibration)) {
+            if (initialized && vl_calibration_equal(&cfg.calibration, &ev.calibration)) {
                 /* Nothing to redo; the first one still counts as the rig's source. */
                 if (strcmp(calib_source, "log") != 0) {
                     calib_source = "log";

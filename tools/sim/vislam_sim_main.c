@@ -13,10 +13,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "vislam_calibration_t.h"
-#include "vislam_imu_t.h"
-#include "vislam_stereo_frame_t.h"
+#include "vl_msg.h"
 #include "vl_sim.h"
+#include "vl_trajectory_file.h"
 
 /* Static: the simulator and a frame are too large to be polite on the stack. */
 static vl_sim_t g_sim;
@@ -116,46 +115,6 @@ static int write_event(lcm_eventlog_t *log, const char *channel, int64_t utime, 
     return lcm_eventlog_write_event(log, &ev);
 }
 
-/** Unit quaternion (x, y, z, w) of a rotation matrix, w >= 0. */
-static void rot_to_quat(const double R[9], double q[4])
-{
-    const double tr = R[0] + R[4] + R[8];
-    double x, y, z, w, n;
-    if (tr > 0.0) {
-        const double s = 2.0 * sqrt(tr + 1.0);
-        w = 0.25 * s;
-        x = (R[7] - R[5]) / s;
-        y = (R[2] - R[6]) / s;
-        z = (R[3] - R[1]) / s;
-    } else if (R[0] > R[4] && R[0] > R[8]) {
-        const double s = 2.0 * sqrt(1.0 + R[0] - R[4] - R[8]);
-        w = (R[7] - R[5]) / s;
-        x = 0.25 * s;
-        y = (R[1] + R[3]) / s;
-        z = (R[2] + R[6]) / s;
-    } else if (R[4] > R[8]) {
-        const double s = 2.0 * sqrt(1.0 + R[4] - R[0] - R[8]);
-        w = (R[2] - R[6]) / s;
-        x = (R[1] + R[3]) / s;
-        y = 0.25 * s;
-        z = (R[5] + R[7]) / s;
-    } else {
-        const double s = 2.0 * sqrt(1.0 + R[8] - R[0] - R[4]);
-        w = (R[3] - R[1]) / s;
-        x = (R[2] + R[6]) / s;
-        y = (R[5] + R[7]) / s;
-        z = 0.25 * s;
-    }
-    n = sqrt(x * x + y * y + z * z + w * w);
-    if (w < 0.0) {
-        n = -n;
-    }
-    q[0] = x / n;
-    q[1] = y / n;
-    q[2] = z / n;
-    q[3] = w / n;
-}
-
 int main(int argc, char **argv)
 {
     vl_sim_config_t cfg;
@@ -253,14 +212,7 @@ int main(int argc, char **argv)
         return 1;
     }
 
-    memset(&calib_msg, 0, sizeof(calib_msg));
-    calib_msg.utime = cfg.start_utime;
-    calib_msg.fx = cfg.calibration.fx;
-    calib_msg.fy = cfg.calibration.fy;
-    calib_msg.cx = cfg.calibration.cx;
-    calib_msg.cy = cfg.calibration.cy;
-    calib_msg.baseline = cfg.calibration.baseline;
-    memcpy(calib_msg.cam_T_imu, cfg.calibration.cam_T_imu, sizeof(calib_msg.cam_T_imu));
+    vl_msg_from_calibration(&cfg.calibration, cfg.start_utime, &calib_msg);
     {
         const int len = vislam_calibration_t_encode(g_buf, 0, (int)sizeof(g_buf), &calib_msg);
         if (len < 0 || write_event(log, "VISLAM_CALIB", calib_msg.utime, len) != 0) {
@@ -272,43 +224,34 @@ int main(int argc, char **argv)
     while (rc == 0) {
         vl_imu_sample_t imu;
         vislam_imu_t imu_msg;
-        double q[4];
-        uint32_t k;
+        char line[VL_TRAJECTORY_LINE_MAX];
         int len;
         if (vl_sim_step(&g_sim, &imu, &g_frame, R, p) != 0) {
             break;
         }
-        imu_msg.utime = imu.utime;
-        memcpy(imu_msg.linear_velocity, imu.linear_velocity, sizeof(imu_msg.linear_velocity));
-        memcpy(imu_msg.angular_velocity, imu.angular_velocity, sizeof(imu_msg.angular_velocity));
+        vl_msg_from_imu(&imu, &imu_msg);
         len = vislam_imu_t_encode(g_buf, 0, (int)sizeof(g_buf), &imu_msg);
         if (len < 0 || write_event(log, "VISLAM_IMU", imu_msg.utime, len) != 0) {
             rc = 1;
             break;
         }
 
-        /* Unused slots are zeroed so the log bytes depend on the valid entries only. */
-        memset(&g_msg_frame, 0, sizeof(g_msg_frame));
-        g_msg_frame.utime = g_frame.utime;
-        g_msg_frame.num_features = (int32_t)g_frame.count;
-        for (k = 0; k < g_frame.count; ++k) {
-            g_msg_frame.id[k] = g_frame.obs[k].id;
-            g_msg_frame.u_left[k] = g_frame.obs[k].u_left;
-            g_msg_frame.v_left[k] = g_frame.obs[k].v_left;
-            g_msg_frame.u_right[k] = g_frame.obs[k].u_right;
-            g_msg_frame.v_right[k] = g_frame.obs[k].v_right;
-        }
+        vl_msg_from_stereo_frame(&g_frame, &g_msg_frame); /* zeroes the unused slots */
         len = vislam_stereo_frame_t_encode(g_buf, 0, (int)sizeof(g_buf), &g_msg_frame);
         if (len < 0 || write_event(log, "VISLAM_FEATURES", g_msg_frame.utime, len) != 0) {
             rc = 1;
             break;
         }
 
-        rot_to_quat(R, q);
-        /* Integer formatting keeps the microsecond time exact (a double at 1e9 s is not). */
-        fprintf(truth, "%lld.%06lld000 %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n",
-                (long long)(imu.utime / 1000000), (long long)(imu.utime % 1000000), p[0], p[1], p[2],
-                q[0], q[1], q[2], q[3]);
+        /* the truth in exactly the lines vislam-run writes */
+        vl_pose_t truth_pose;
+        memset(&truth_pose, 0, sizeof(truth_pose));
+        memcpy(truth_pose.rotation, R, sizeof(truth_pose.rotation));
+        memcpy(truth_pose.position, p, sizeof(truth_pose.position));
+        if (vl_trajectory_format_line(line, sizeof(line), imu.utime, &truth_pose) < 0 || fputs(line, truth) < 0) {
+            rc = 1;
+            break;
+        }
         ++steps;
         observations += g_frame.count;
     }

@@ -350,6 +350,9 @@ uint32_t vl_window_size(const vl_estimator_t *e);
 /** Dimension of the joint state now (12 + 3 * landmarks). */
 uint32_t vl_state_dim(const vl_estimator_t *e);
 
+/** Unit quaternion [w, x, y, z] (w >= 0, so equal rotations print equal) of a row-major rotation. */
+void vl_rotation_to_quaternion(const double R[9], double q_wxyz[4]);
+
 /** A short English description of a status value. */
 const char *vl_status_str(vl_status_t status);
 

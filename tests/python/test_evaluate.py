@@ -1,0 +1,131 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import REPO
+from vislam_tools.evaluate import main
+from vislam_tools.geometry import make_pose, se3_exp, se3_inv, so3_exp
+from vislam_tools.trajio import read_tum, write_tum
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def drive(n=60, seed=0, noise=0.0):
+    """A smooth planar-ish drive with optional per-step twist noise."""
+    rng = np.random.default_rng(seed)
+    poses = [np.eye(4)]
+    for k in range(n - 1):
+        u = np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.05 * np.sin(k / 10)]) + rng.normal(size=6) * noise
+        poses.append(poses[-1] @ se3_exp(u))
+    return 1000.0 + np.arange(n) * 0.1, np.array(poses)
+
+
+@pytest.fixture()
+def files(tmp_path):
+    times, gt = drive()
+    _, est = drive(noise=0.02, seed=5)
+    gt_path, est_path = tmp_path / "gt.tum", tmp_path / "est.tum"
+    write_tum(gt_path, times, gt)
+    # Estimate in another world frame: the rigid alignment must absorb it.
+    write_tum(est_path, times, make_pose(so3_exp([0, 0, 0.7]), [3, -1, 0]) @ est)
+    ply = tmp_path / "map.ply"
+    pts = np.column_stack([np.linspace(0, 50, 40), np.linspace(-5, 5, 40), np.zeros(40),
+                           np.round(np.linspace(1000.0, 1005.9, 40) * 1e6)])
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 40\nproperty float x\nproperty float y\n"
+                   "property float z\nproperty double first_utime\nend_header\n"
+                   + "".join("%g %g %g %d\n" % tuple(p) for p in pts))
+    return {"gt": gt_path, "est": est_path, "map": ply, "dir": tmp_path}
+
+
+def test_ate_of_identical_trajectory_is_zero(files, capsys):
+    out = files["dir"] / "ate.json"
+    assert main(["ate", "--estimate", str(files["gt"]), "--gt", str(files["gt"]), "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["ate"]["rmse"] < 1e-6
+    assert res["pairs"] == 60 and res["association"] == "time"
+    assert [r["delta"] for r in res["rpe"]] == [1, 10]
+    assert all(r["trans_rmse"] < 1e-6 for r in res["rpe"])
+    assert "ATE  rmse" in capsys.readouterr().out
+
+
+def test_ate_aligns_a_moved_noisy_estimate(files):
+    out = files["dir"] / "ate.json"
+    assert main(["ate", "--estimate", str(files["est"]), "--gt", str(files["gt"]), "--json", str(out),
+                 "--rpe-deltas", "1,5"]) == 0
+    res = json.loads(out.read_text())
+    assert 0.0 < res["ate"]["rmse"] < 5.0
+    assert res["ate"]["median"] <= res["ate"]["max"]
+    assert [r["delta"] for r in res["rpe"]] == [1, 5]
+    # Unaligned error would be large: the estimate's world is rotated and shifted.
+    est, gt = read_tum(files["est"]), read_tum(files["gt"])
+    assert np.sqrt(np.mean(np.sum((est.positions - gt.positions) ** 2, axis=1))) > 3 * res["ate"]["rmse"]
+
+
+def test_ate_with_kitti_ground_truth_and_npz_calibration(tmp_path):
+    times, imu = drive(n=30)
+    cam_T_imu = make_pose(so3_exp([1.2, -1.2, 1.2]), [1.1, -0.3, 0.7])
+    cam = cam_T_imu @ imu @ se3_inv(cam_T_imu)
+    kitti = tmp_path / "gt.txt"
+    kitti.write_text("".join(" ".join(f"{x:.12g}" for x in [t - times[0]] + list(p[:3, :4].ravel())) + "\n"
+                             for t, p in zip(times, cam)))
+    npz = tmp_path / "d.npz"
+    np.savez(npz, time_stamps=times[None, :], cam_T_imu=cam_T_imu, K=np.eye(3), b=np.float64(0.5))
+    est = tmp_path / "est.tum"
+    write_tum(est, times, imu)
+    out = tmp_path / "ate.json"
+    assert main(["ate", "--estimate", str(est), "--gt", str(kitti), "--calib", str(npz), "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["ate"]["rmse"] < 1e-6
+    assert res["rpe"][0]["rot_rmse_deg"] < 1e-4
+
+
+def test_ate_with_no_overlap_is_a_clear_error(files, tmp_path, capsys):
+    other = tmp_path / "other.tum"
+    write_tum(other, [1.0, 2.0, 3.0], np.stack([np.eye(4)] * 3))
+    assert main(["ate", "--estimate", str(other), "--gt", str(files["gt"]), "--associate", "time"]) == 1
+    assert "pairs" in capsys.readouterr().err
+
+
+def test_plot_writes_png(files):
+    dr_path = files["dir"] / "dr.tum"
+    times, dr = drive(noise=0.05, seed=9)
+    write_tum(dr_path, times, dr)
+    out = files["dir"] / "fig.png"
+    assert main(["plot", "--estimate", str(files["est"]), "--dead-reckoning", str(dr_path),
+                 "--map", str(files["map"]), "--gt", str(files["gt"]), "--out", str(out), "--dpi", "50"]) == 0
+    data = out.read_bytes()
+    assert data.startswith(PNG_MAGIC) and len(data) > 1000
+
+
+def test_animate_writes_gif(files):
+    out = files["dir"] / "run.gif"
+    assert main(["animate", "--estimate", str(files["est"]), "--map", str(files["map"]),
+                 "--gt", str(files["gt"]), "--out", str(out), "--max-frames", "8", "--dpi", "40"]) == 0
+    data = out.read_bytes()
+    assert data[:6] in (b"GIF89a", b"GIF87a") and len(data) > 1000
+    from PIL import Image
+    with Image.open(out) as im:
+        assert im.n_frames >= 2
+
+
+def test_deadreckon_writes_tum(tmp_path):
+    n = 20
+    npz = tmp_path / "d.npz"
+    np.savez(npz, time_stamps=(np.arange(n) * 0.1)[None, :], linear_velocity=np.tile([[1.0], [0], [0]], (1, n)),
+             rotational_velocity=np.zeros((3, n)), features=-np.ones((4, 1, n)), K=np.eye(3),
+             b=np.float64(0.5), cam_T_imu=np.eye(4))
+    out = tmp_path / "dr.tum"
+    assert main(["deadreckon", "--data", str(npz), "--out", str(out)]) == 0
+    traj = read_tum(out)
+    assert len(traj) == n
+    np.testing.assert_allclose(traj.positions[-1], [1.9, 0, 0], atol=1e-9)
+
+
+def test_wrapper_help_mentions_evo():
+    res = subprocess.run([str(REPO / "tools" / "evaluate"), "ate", "--help"], capture_output=True, text=True,
+                         env={"VISLAM_PYTHON": sys.executable, "PATH": "/usr/bin:/bin"}, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert "evo" in res.stdout and "--estimate" in res.stdout

@@ -1,0 +1,218 @@
+"""Trajectory evaluation for vislam: ATE/RPE against ground truth, figures, animations.
+
+Trajectories are TUM files (`time tx ty tz qx qy qz qw`, seconds and metres, world-from-IMU),
+the format evo reads (`evo_ape tum GT.tum EST.tum -a` gives the same aligned ATE for TUM ground truth).
+"""
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from . import ToolError
+from .geometry import integrate_dead_reckoning, se3_inv
+from .metrics import associate, ate, rpe
+from .trajio import (Trajectory, load_calibration, load_npz, read_ground_truth, read_ply, read_tum,
+                     write_tum)
+
+EPILOG = """\
+Formats:
+  TUM     one pose per line: time tx ty tz qx qy qz qw (s, m, unit quaternion; world-from-IMU).
+          evo-compatible, e.g. evo_ape tum GT.tum EST.tum -a, evo_traj tum EST.tum --plot.
+  KITTI   13 numbers per line: time, then the 3x4 [R|t] of the left camera at step i in the
+          camera-0 frame (12 numbers without the time also accepted). Converted to IMU poses with
+          cam_T_imu from --calib: w_T_i = imu_T_cam * c0_T_cam(i) * cam_T_imu.
+  PLY     landmark map: element vertex with float x, y, z (more properties allowed; a
+          first_utime/utime/time property makes animated landmarks appear when first seen).
+
+Examples:
+  evaluate deadreckon --data ../shared/data/0027.npz --out /tmp/dr.tum
+  evaluate ate --estimate slam.tum --gt ../shared/data/gt/kitti_odometry_07.txt --calib ../shared/data/0027.npz
+  evaluate plot --estimate slam.tum --dead-reckoning dr.tum --map map.ply --out fig.png
+  evaluate animate --estimate slam.tum --map map.ply --out run.gif
+"""
+
+
+def _add_gt_args(p, required):
+    p.add_argument("--gt", required=required, metavar="GT",
+                   help="ground truth: KITTI odometry poses (.txt) or TUM (e.g. the simulator's truth)")
+    p.add_argument("--gt-format", choices=("auto", "tum", "kitti"), default="auto",
+                   help="ground-truth format (default: by the count of numbers per line)")
+    p.add_argument("--calib", metavar="DATA.npz|LOG.lcmlog",
+                   help="cam_T_imu and step times: a seed dataset or an LCM log with a *CALIB event "
+                        "(needed for KITTI ground truth)")
+    p.add_argument("--associate", choices=("auto", "time", "relative", "index"), default="auto",
+                   help="pair estimate and GT poses by absolute time, by time since each one's first "
+                        "pose, or by line index; auto = time, else relative (default auto)")
+    p.add_argument("--max-dt", type=float, default=0.02, metavar="S",
+                   help="largest time difference accepted when pairing (default 0.02 s)")
+    p.add_argument("--scale", action="store_true",
+                   help="Sim(3) alignment (also estimate scale); default is rigid SE(3)")
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog="evaluate", description=__doc__.splitlines()[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    p = sub.add_parser("ate", help="absolute trajectory error (Umeyama-aligned) and relative pose error",
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
+    p.add_argument("--estimate", required=True, metavar="EST.tum", help="estimated trajectory (TUM)")
+    _add_gt_args(p, required=True)
+    p.add_argument("--rpe-deltas", default="1,10", metavar="D1,D2",
+                   help="RPE step deltas between paired poses (default 1,10)")
+    p.add_argument("--json", metavar="OUT.json", help="also write the numbers as JSON")
+
+    for name, what in (("plot", "top-down figure (PNG/PDF/SVG by extension)"),
+                       ("animate", "animated GIF of the run")):
+        p = sub.add_parser(name, help=what, formatter_class=argparse.RawDescriptionHelpFormatter,
+                           epilog=EPILOG)
+        p.add_argument("--estimate", required=True, metavar="SLAM.tum", help="SLAM trajectory (TUM)")
+        p.add_argument("--dead-reckoning", metavar="DR.tum", help="dead-reckoning trajectory (TUM)")
+        p.add_argument("--map", metavar="MAP.ply", help="landmark map (PLY)")
+        _add_gt_args(p, required=False)
+        p.add_argument("--title", default=None, help="figure title (default: file names, ATE if GT)")
+        p.add_argument("--out", required=True, metavar="FIG.png" if name == "plot" else "RUN.gif")
+        if name == "plot":
+            p.add_argument("--dpi", type=int, default=120)
+        else:
+            p.add_argument("--max-frames", type=int, default=100, help="frames drawn (default 100)")
+            p.add_argument("--fps", type=int, default=10, help="GIF frame rate (default 10)")
+            p.add_argument("--dpi", type=int, default=90, help="GIF resolution (default 90: 540x450 px)")
+
+    p = sub.add_parser("deadreckon", help="integrate a dataset's velocities into a TUM trajectory",
+                       description="w_T_i(t+1) = w_T_i(t) exp(tau_t hat(u_t)), w_T_i(0) = I; one line per step.")
+    p.add_argument("--data", required=True, metavar="DATA.npz", help="seed dataset")
+    p.add_argument("--out", required=True, metavar="DR.tum")
+    p.add_argument("--max-steps", type=int, default=None, metavar="N")
+    return parser
+
+
+def evaluate_against_gt(est, args):
+    """Associate, align and measure. Returns (results dict, aligned-GT-in-estimate-frame Trajectory)."""
+    calib = load_calibration(args.calib) if args.calib else None
+    gt = read_ground_truth(args.gt, calib, args.gt_format)
+    ei, gi, mode = associate(est.times, gt.times, args.associate, args.max_dt)
+    if len(ei) < 3:
+        raise ToolError(f"only {len(ei)} estimate/GT pairs (association '{mode}', max dt {args.max_dt} s): "
+                        "check the time stamps, or use --associate relative|index")
+    est_p = est.poses[ei]
+    gt_p = gt.poses[gi]
+    stats, err, t_align, scale = ate(est_p[:, :3, 3], gt_p[:, :3, 3], with_scale=args.scale)
+    results = {
+        "estimate": args.estimate if hasattr(args, "estimate") else "",
+        "ground_truth": args.gt,
+        "association": mode,
+        "pairs": int(len(ei)),
+        "estimate_poses": int(len(est)),
+        "gt_poses": int(len(gt)),
+        "alignment": "sim3" if args.scale else "se3",
+        "scale": float(scale),
+        "ate": stats,
+        "rpe": [],
+        "align_T": t_align.tolist(),
+    }
+    deltas = [int(x) for x in getattr(args, "rpe_deltas", "1,10").split(",") if x.strip()]
+    for d in deltas:
+        r = rpe(est_p, gt_p, d)
+        if r is not None:
+            results["rpe"].append(r)
+    # GT drawn in the estimate's frame so the SLAM, dead-reckoning and map layers stay as published.
+    inv = se3_inv(t_align)
+    gt_in_est = (gt.poses[:, :3, 3] @ inv[:3, :3].T + inv[:3, 3]) / scale
+    gt_aligned = Trajectory(gt.times, gt.poses.copy(), "ground truth")
+    gt_aligned.poses[:, :3, 3] = gt_in_est
+    return results, gt_aligned
+
+
+def cmd_ate(args):
+    est = read_tum(args.estimate)
+    res, _ = evaluate_against_gt(est, args)
+    a = res["ate"]
+    print(f"pairs: {res['pairs']} of {res['estimate_poses']} estimate / {res['gt_poses']} GT poses "
+          f"(association: {res['association']}, alignment: {res['alignment']}"
+          + (f", scale {res['scale']:.4f}" if args.scale else "") + ")")
+    print(f"ATE  rmse {a['rmse']:.3f} m  mean {a['mean']:.3f} m  median {a['median']:.3f} m  "
+          f"max {a['max']:.3f} m")
+    for r in res["rpe"]:
+        print(f"RPE  delta {r['delta']:>3} steps: trans rmse {r['trans_rmse']:.4f} m, "
+              f"rot rmse {r['rot_rmse_deg']:.4f} deg ({r['pairs']} pairs)")
+    if args.json:
+        try:
+            with open(args.json, "w") as f:
+                json.dump(res, f, indent=2)
+                f.write("\n")
+        except OSError as exc:
+            raise ToolError(f"cannot write {args.json}: {exc.strerror}") from exc
+    return 0
+
+
+def _scene(args):
+    from .plotting import Scene, landmark_times_from_ply
+    est = read_tum(args.estimate)
+    scene = Scene(est.times, est.positions)
+    names = [args.estimate.rsplit("/", 1)[-1]]
+    if args.dead_reckoning:
+        dr = read_tum(args.dead_reckoning)
+        scene.dr_times, scene.dr_xyz = dr.times, dr.positions
+    if args.map:
+        props = read_ply(args.map)
+        scene.landmarks = np.column_stack([props["x"], props["y"], props["z"]])
+        scene.landmark_times = landmark_times_from_ply(props)
+    ate_text = ""
+    if args.gt:
+        res, gt_aligned = evaluate_against_gt(est, args)
+        scene.gt_times, scene.gt_xyz = gt_aligned.times, gt_aligned.positions
+        ate_text = f"ATE {res['ate']['rmse']:.2f} m ({res['pairs']} poses)"
+        print(f"ATE rmse {res['ate']['rmse']:.3f} m over {res['pairs']} pairs")
+    if args.title is not None:
+        scene.title = args.title
+    else:
+        scene.title = "  ".join(x for x in (names[0], ate_text) if x)
+    return scene
+
+
+def cmd_plot(args):
+    from .plotting import plot_topdown
+    plot_topdown(_scene(args), args.out, dpi=args.dpi)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_animate(args):
+    from .plotting import animate_topdown
+    if args.max_frames < 2 or args.fps < 1:
+        raise ToolError("--max-frames must be >= 2 and --fps >= 1")
+    animate_topdown(_scene(args), args.out, max_frames=args.max_frames, fps=args.fps, dpi=args.dpi)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_deadreckon(args):
+    data = load_npz(args.data)
+    ts = np.asarray(data["time_stamps"], dtype=float).reshape(-1)
+    n = ts.shape[0] if args.max_steps is None else min(ts.shape[0], max(args.max_steps, 1))
+    poses = integrate_dead_reckoning(ts[:n], data["linear_velocity"][:, :n], data["rotational_velocity"][:, :n])
+    try:
+        write_tum(args.out, ts[:n], poses)
+    except OSError as exc:
+        raise ToolError(f"cannot write {args.out}: {exc.strerror}") from exc
+    print(f"wrote {args.out}: {n} poses")
+    return 0
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    handlers = {"ate": cmd_ate, "plot": cmd_plot, "animate": cmd_animate, "deadreckon": cmd_deadreckon}
+    try:
+        return handlers[args.command](args)
+    except ToolError as exc:
+        print(f"evaluate: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,174 @@
+"""Top-down (world x-y) figures and animations of a run. Headless: matplotlib's Agg backend."""
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (backend must be chosen first)
+
+from . import ToolError  # noqa: E402
+
+# PLY vertex properties that may carry the time a landmark was first seen (for animations).
+LANDMARK_TIME_PROPERTIES = ("first_utime", "utime", "first_time", "time", "first_seen", "t")
+
+COLORS = {"slam": "tab:red", "dr": "tab:blue", "gt": "tab:green", "map": "0.35"}
+
+
+@dataclass
+class Scene:
+    """Everything drawn, already in the estimate's world frame. Paths are (N, 3) positions."""
+    slam_times: np.ndarray
+    slam_xyz: np.ndarray
+    dr_times: Optional[np.ndarray] = None
+    dr_xyz: Optional[np.ndarray] = None
+    gt_times: Optional[np.ndarray] = None
+    gt_xyz: Optional[np.ndarray] = None
+    landmarks: Optional[np.ndarray] = None        # (L, 3)
+    landmark_times: Optional[np.ndarray] = None   # (L,) s, same clock as the paths, or None
+    title: str = ""
+
+
+def landmark_times_from_ply(props):
+    """First-seen time (s) per vertex if the PLY declares one, else None."""
+    for name in LANDMARK_TIME_PROPERTIES:
+        if name in props:
+            values = np.asarray(props[name], dtype=float)
+            return values * 1e-6 if "utime" in name else values
+    return None
+
+
+def _view_limits(scene, margin_frac=0.08):
+    """Axis box around the paths; landmarks widen it only moderately so outliers do not shrink the paths."""
+    paths = [p[:, :2] for p in (scene.slam_xyz, scene.dr_xyz, scene.gt_xyz) if p is not None and len(p)]
+    pts = np.vstack(paths)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    extent = max(float(np.max(hi - lo)), 1.0)
+    if scene.landmarks is not None and len(scene.landmarks):
+        grow = max(0.25 * extent, 20.0)
+        lm = scene.landmarks[:, :2]
+        inside = np.all((lm >= lo - grow) & (lm <= hi + grow), axis=1)
+        if inside.any():
+            lo = np.minimum(lo, lm[inside].min(axis=0))
+            hi = np.maximum(hi, lm[inside].max(axis=0))
+    pad = margin_frac * max(float(np.max(hi - lo)), 1.0)
+    return lo - pad, hi + pad
+
+
+def _setup_axes(ax, scene, lo, hi):
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(True, linewidth=0.3, alpha=0.5)
+    if scene.title:
+        ax.set_title(scene.title, fontsize=10)
+
+
+def plot_topdown(scene, out_path, dpi=120):
+    """Write a PNG (or any matplotlib format, by extension) of the whole run."""
+    fig, ax = plt.subplots(figsize=(8, 7))
+    lo, hi = _view_limits(scene)
+    if scene.landmarks is not None and len(scene.landmarks):
+        ax.scatter(scene.landmarks[:, 0], scene.landmarks[:, 1], s=1.5, c=COLORS["map"], marker=".",
+                   linewidths=0, label=f"landmarks ({len(scene.landmarks)})", zorder=1)
+    if scene.gt_xyz is not None:
+        ax.plot(scene.gt_xyz[:, 0], scene.gt_xyz[:, 1], "-", color=COLORS["gt"], lw=1.6,
+                label="ground truth (aligned)", zorder=2)
+    if scene.dr_xyz is not None:
+        ax.plot(scene.dr_xyz[:, 0], scene.dr_xyz[:, 1], "-", color=COLORS["dr"], lw=1.2,
+                label="dead reckoning", zorder=3)
+    ax.plot(scene.slam_xyz[:, 0], scene.slam_xyz[:, 1], "-", color=COLORS["slam"], lw=1.6,
+            label="VI-SLAM", zorder=4)
+    ax.scatter(scene.slam_xyz[0, 0], scene.slam_xyz[0, 1], marker="s", s=60, c="k", label="start", zorder=5)
+    ax.scatter(scene.slam_xyz[-1, 0], scene.slam_xyz[-1, 1], marker="o", s=60, c="k", label="end", zorder=5)
+    _setup_axes(ax, scene, lo, hi)
+    ax.legend(loc="best", fontsize=8, markerscale=1.0)
+    fig.tight_layout()
+    try:
+        fig.savefig(out_path, dpi=dpi)
+    except OSError as exc:
+        raise ToolError(f"cannot write {out_path}: {exc}") from exc
+    finally:
+        plt.close(fig)
+
+
+def animate_topdown(scene, out_path, max_frames=100, fps=10, dpi=90, hold_frames=None):
+    """Write an animated GIF of the paths growing over time (landmarks appear when first seen if known).
+
+    Frames are rendered by blitting only the moving artists over a once-drawn background and are
+    assembled with Pillow on one shared palette: a full matplotlib redraw per frame (what
+    FuncAnimation + PillowWriter does) costs ~10x more and would take most of a minute.
+    """
+    from PIL import Image
+
+    t_all = scene.slam_times
+    if len(t_all) < 2:
+        raise ToolError("animation needs at least two estimate poses")
+    n_frames = int(max(2, min(max_frames, len(t_all))))
+    frame_times = np.linspace(t_all[0], t_all[-1], n_frames)
+    if hold_frames is None:
+        hold_frames = max(1, fps)  # about a second on the final picture
+    fig, ax = plt.subplots(figsize=(6, 5), dpi=dpi)
+    lo, hi = _view_limits(scene)
+    _setup_axes(ax, scene, lo, hi)
+
+    lm_scatter = None
+    if scene.landmarks is not None and len(scene.landmarks):
+        lm_scatter = ax.scatter(np.empty(0), np.empty(0), s=1.5, c=COLORS["map"], marker=".",
+                                linewidths=0, label="landmarks", animated=True)
+    lines = []
+    for times, xyz, key, label in ((scene.gt_times, scene.gt_xyz, "gt", "ground truth (aligned)"),
+                                   (scene.dr_times, scene.dr_xyz, "dr", "dead reckoning"),
+                                   (scene.slam_times, scene.slam_xyz, "slam", "VI-SLAM")):
+        if xyz is None:
+            continue
+        (line,) = ax.plot([], [], "-", color=COLORS[key], lw=1.4, label=label, animated=True)
+        lines.append((times, xyz, line))
+    (head,) = ax.plot([], [], "o", color="k", ms=5, label="current", animated=True)
+    ax.scatter(scene.slam_xyz[0, 0], scene.slam_xyz[0, 1], marker="s", s=40, c="k", label="start")
+    clock = ax.text(0.02, 0.02, "", transform=ax.transAxes, fontsize=9, animated=True,
+                    bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none"})
+    ax.legend(loc="upper right", fontsize=7)
+    fig.tight_layout()
+    canvas = fig.canvas
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
+
+    def render(t):
+        canvas.restore_region(background)
+        if lm_scatter is not None:
+            if scene.landmark_times is not None:
+                visible = scene.landmarks[scene.landmark_times <= t]
+            else:
+                visible = scene.landmarks
+            lm_scatter.set_offsets(visible[:, :2] if len(visible) else np.empty((0, 2)))
+            ax.draw_artist(lm_scatter)
+        for times, xyz, line in lines:
+            n = int(np.searchsorted(times, t, side="right"))
+            line.set_data(xyz[:n, 0], xyz[:n, 1])
+            ax.draw_artist(line)
+        n = max(int(np.searchsorted(scene.slam_times, t, side="right")), 1)
+        head.set_data(scene.slam_xyz[n - 1:n, 0], scene.slam_xyz[n - 1:n, 1])
+        ax.draw_artist(head)
+        clock.set_text(f"t = {t - t_all[0]:6.1f} s")
+        ax.draw_artist(clock)
+        rgba = np.asarray(canvas.buffer_rgba())
+        return Image.fromarray(rgba[:, :, :3].copy())
+
+    try:
+        frames = [render(t) for t in frame_times]
+    finally:
+        plt.close(fig)
+    # One palette from the last (fullest) frame keeps colours steady and the file small.
+    palette = frames[-1].quantize(colors=128, method=Image.Quantize.MEDIANCUT)
+    frames = [f.quantize(palette=palette, dither=Image.Dither.NONE) for f in frames]
+    durations = [int(round(1000 / fps))] * (len(frames) - 1) + [int(round(1000 / fps)) * (1 + hold_frames)]
+    try:
+        frames[0].save(out_path, format="GIF", save_all=True, append_images=frames[1:],
+                       duration=durations, loop=0, optimize=False)
+    except (OSError, ValueError) as exc:
+        raise ToolError(f"cannot write {out_path}: {exc}") from exc
