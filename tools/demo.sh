@@ -115,7 +115,7 @@ fi
 "$BUILD_DIR/bin/vislam-run" "$LOG" --trajectory "$OUT_DIR/offline.tum" --map "$OUT_DIR/map.ply" --quiet
 echo
 echo "== summary ($NAME)"
-grep -E "^  in: |budget .*overrun|all steps|propagation:|update     :" "$OUT_DIR/vislamd.log" | sed 's/^ */   vislamd: /'
+grep -E "^  in: |budget .*overrun|all steps  :|propagation:|update     :" "$OUT_DIR/vislamd.log" | sed 's/^ */   vislamd: /'
 grep -E "poses received|end-to-end" "$OUT_DIR/replay.log" | sed 's/^ */   replay:  /'
 if cmp -s "$OUT_DIR/trajectory.tum" "$OUT_DIR/offline.tum"; then
   echo "   the daemon's trajectory equals vislam-run's offline one, byte for byte"

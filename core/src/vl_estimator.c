@@ -685,7 +685,7 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
     return VL_OK;
 }
 
-/* Observation validity before any use: finite pixels, a real id, positive disparity. */
+/* Observation validity before any use: finite pixels and a real id. */
 static int observation_valid(const vl_stereo_obs_t *o)
 {
     return o->id >= 0 && isfinite(o->u_left) && isfinite(o->v_left) && isfinite(o->u_right) &&
@@ -740,6 +740,219 @@ typedef struct {
     double score;
 } candidate_t;
 
+/* Admission candidates of one frame (on the stack of vl_update: a few KiB). */
+typedef struct {
+    candidate_t item[VL_MAX_FRAME_FEATURES];
+    uint32_t count;
+} candidates_t;
+
+static void add_candidate(candidates_t *c, uint32_t obs, double score)
+{
+    if (c->count < VL_MAX_FRAME_FEATURES) {
+        c->item[c->count].obs = obs;
+        c->item[c->count].score = score;
+        c->count++;
+    }
+}
+
+static int disparity_admissible(const vl_estimator_t *e, double disparity)
+{
+    return disparity >= e->cfg.min_disparity && depth_of(&e->cfg.calibration, disparity) <= e->cfg.max_depth;
+}
+
+/*
+ * Step 1: observations of window landmarks become update rows (returns how
+ * many); the others feed the pending tracks and, once old and consistent
+ * enough, become admission candidates.
+ */
+static uint32_t classify_observations(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count,
+                                      double frame_dt, candidates_t *candidates)
+{
+    vl_la_obs_t *rows = e->work_rows;
+    uint32_t k = 0;
+    for (uint32_t i = 0; i < count; ++i) {
+        const vl_stereo_obs_t *o = &frame->obs[i];
+        if (!observation_valid(o)) {
+            e->counters.observations_invalid++;
+            continue;
+        }
+        const double disparity = o->u_left - o->u_right;
+        const int slot = find_slot(e, o->id);
+        if (slot >= 0) {
+            if (e->work_seen[slot]) {
+                e->counters.observations_invalid++; /* the same id twice in one frame */
+                continue;
+            }
+            e->work_seen[slot] = 1;
+            vl_landmark_slot_t *s = &e->slots[slot];
+            s->unseen_frames = 0;
+            s->last_utime = frame->utime;
+            s->observations++;
+            if (!(disparity > 0.0)) {
+                e->counters.observations_low_disparity++;
+                continue;
+            }
+            if (make_row(e, (uint32_t)slot, o, &rows[k]) != 0) {
+                e->counters.observations_behind_camera++;
+                continue;
+            }
+            e->work_frame_obs[k] = i;
+            e->work_slot[k] = (uint32_t)slot;
+            k++;
+            continue;
+        }
+        int duplicate = 0;
+        vl_pending_track_t *t = pending_touch(e, o->id, &duplicate);
+        if (duplicate) {
+            e->counters.observations_invalid++;
+            continue;
+        }
+        if (!disparity_admissible(e, disparity)) {
+            e->counters.observations_low_disparity++;
+            if (t != NULL) {
+                t->frames_seen = 0; /* no usable point to compare the next observation with */
+            }
+            continue;
+        }
+        if (t == NULL) {
+            continue; /* pending table full: the track is retried next frame */
+        }
+        double y[3];
+        vl_stereo_compress(o, y);
+        if (t->frames_seen >= 2 && !track_consistent(e, t, y, frame_dt)) {
+            e->counters.tracks_inconsistent++;
+            t->frames_seen = 1;
+        }
+        triangulate_world(e, y, t->point, t->covariance);
+        if (t->frames_seen >= e->cfg.min_track_length) {
+            /* Larger disparity (nearer, better conditioned) and longer tracks go first. */
+            const uint32_t age = t->frames_seen - 1u;
+            add_candidate(candidates, i, disparity * (1.0 + 0.5 * (double)(age < 4u ? age : 4u)));
+        }
+    }
+    return k;
+}
+
+/* Marks every row's landmark as a broken track (see rescue_outliers). */
+static void break_all_rows(vl_estimator_t *e, uint32_t k)
+{
+    for (uint32_t i = 0; i < k; ++i) {
+        e->work_seen[e->work_slot[i]] = 2;
+        e->work_broken[e->num_broken++] = e->work_frame_obs[i];
+    }
+}
+
+/*
+ * Step 2: outlier rejection, the joint update with the inliers, then a second
+ * update with the outliers that agree with the corrected state.
+ */
+static vl_status_t update_with_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t k)
+{
+    vl_la_obs_t *rows = e->work_rows;
+    if (k == 0) {
+        return VL_OK;
+    }
+    if (e->cfg.gate_chi2 <= 0.0) {
+        return apply_update(e, rows, k); /* no outlier rejection at all (the seed's plain EKF) */
+    }
+    const uint32_t contradicting = gate_rows(e, rows, k);
+    if (k >= VL_MIN_ROWS_FOR_REASSOCIATION && (double)contradicting > e->cfg.max_broken_fraction * (double)k) {
+        /* Most tracks contradict the state at once: the tracker re-associated its
+         * ids (it does so when it detects new features). None of these
+         * observations is trusted; every observed landmark restarts. */
+        e->counters.frames_reassociated++;
+        e->counters.observations_gated += k;
+        break_all_rows(e, k);
+        return VL_OK;
+    }
+    if (e->cfg.ransac_hypotheses > 0 && k >= 2) {
+        ransac_rows(e, rows, k);
+    }
+    const uint32_t inliers = partition_rows(e, rows, k);
+    const uint32_t rest = k - inliers;
+    vl_status_t st = apply_update(e, rows, inliers);
+    if (st != VL_OK || rest == 0) {
+        e->counters.observations_gated += rest;
+        return st;
+    }
+    const uint32_t rescued = rescue_outliers(e, frame, rows, inliers, rest);
+    e->counters.observations_rescued += rescued;
+    e->counters.observations_gated += rest - rescued;
+    return apply_update(e, rows, rescued);
+}
+
+/* Step 3: tracks that ended or broke leave the window for the map. */
+static void retire_landmarks(vl_estimator_t *e)
+{
+    /* Walk down: marginalizing moves the last slot into the freed one. */
+    for (uint32_t s = e->num_landmarks; s-- > 0;) {
+        if (e->work_seen[s] == 2) {
+            marginalize_slot(e, s);
+            e->counters.tracks_broken++;
+        } else if (!e->work_seen[s] && ++e->slots[s].unseen_frames > e->cfg.max_unseen_frames) {
+            marginalize_slot(e, s);
+        }
+    }
+}
+
+/* The unobserved landmark unseen longest, or -1: a landmark observed now is never evicted. */
+static int eviction_victim(const vl_estimator_t *e)
+{
+    int victim = -1;
+    uint32_t longest = 0;
+    for (uint32_t s = 0; s < e->num_landmarks; ++s) {
+        if (!e->work_seen[s] && e->slots[s].unseen_frames >= longest) {
+            longest = e->slots[s].unseen_frames;
+            victim = (int)s;
+        }
+    }
+    return victim;
+}
+
+/* Step 4: admissions, best first, including the restarts of broken tracks. */
+static void admit_candidates(vl_estimator_t *e, const vl_stereo_frame_t *frame, candidates_t *c)
+{
+    for (uint32_t b = 0; b < e->num_broken; ++b) {
+        const vl_stereo_obs_t *o = &frame->obs[e->work_broken[b]];
+        const double disparity = o->u_left - o->u_right;
+        if (disparity_admissible(e, disparity)) {
+            add_candidate(c, e->work_broken[b], disparity);
+        }
+    }
+    for (uint32_t i = 1; i < c->count; ++i) { /* insertion sort: stable, so deterministic */
+        const candidate_t item = c->item[i];
+        uint32_t j = i;
+        while (j > 0 && c->item[j - 1].score < item.score) {
+            c->item[j] = c->item[j - 1];
+            --j;
+        }
+        c->item[j] = item;
+    }
+    for (uint32_t i = 0; i < c->count; ++i) {
+        const vl_stereo_obs_t *o = &frame->obs[c->item[i].obs];
+        if (e->num_landmarks >= e->cfg.max_landmarks) {
+            const int victim = eviction_victim(e);
+            if (victim < 0) {
+                e->counters.landmarks_deferred += c->count - i;
+                break;
+            }
+            marginalize_slot(e, (uint32_t)victim);
+            e->counters.landmarks_evicted++;
+        }
+        double y[3];
+        vl_stereo_compress(o, y);
+        admit_landmark(e, o->id, y);
+        /* An admitted id leaves the pending table. */
+        for (uint32_t p = 0; p < e->num_pending; ++p) {
+            if (e->pending[p].id == o->id) {
+                e->pending[p].id = -1;
+                break;
+            }
+        }
+    }
+    pending_compact(e);
+}
+
 vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
 {
     if (e == NULL || frame == NULL) {
@@ -768,204 +981,27 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     }
 
     propagate_to(e, frame->utime);
-    const double frame_dt = (e->counters.frames_accepted > 0) ? (double)(frame->utime - e->last_frame_utime) * 1e-6 : 0.0;
+    const double frame_dt =
+        (e->counters.frames_accepted > 0) ? (double)(frame->utime - e->last_frame_utime) * 1e-6 : 0.0;
     e->last_frame_utime = frame->utime;
     e->frame_index++;
     e->counters.frames_accepted++;
-
     if (e->cfg.mode == VL_MODE_IMU_ONLY) {
         return result;
     }
 
-    const vl_calibration_t *cal = &e->cfg.calibration;
     memset(e->work_seen, 0, sizeof(e->work_seen));
     e->num_broken = 0;
-
-    /* 1. Observations of window landmarks become update rows; the rest are candidates. */
-    vl_la_obs_t *rows = e->work_rows;
-    uint32_t k = 0;
-    candidate_t candidates[VL_MAX_FRAME_FEATURES];
-    uint32_t num_candidates = 0;
-
-    for (uint32_t i = 0; i < count; ++i) {
-        const vl_stereo_obs_t *o = &frame->obs[i];
-        if (!observation_valid(o)) {
-            e->counters.observations_invalid++;
-            continue;
-        }
-        const double disparity = o->u_left - o->u_right;
-        const int slot = find_slot(e, o->id);
-        if (slot >= 0) {
-            if (e->work_seen[slot]) {
-                e->counters.observations_invalid++; /* the same id twice in one frame */
-                continue;
-            }
-            e->work_seen[slot] = 1;
-            vl_landmark_slot_t *s = &e->slots[slot];
-            s->unseen_frames = 0;
-            s->last_utime = frame->utime;
-            s->observations++;
-            if (!(disparity > 0.0)) {
-                e->counters.observations_low_disparity++;
-                continue;
-            }
-            vl_la_obs_t *row = &rows[k];
-            if (make_row(e, (uint32_t)slot, o, row) != 0) {
-                e->counters.observations_behind_camera++;
-                continue;
-            }
-            e->work_frame_obs[k] = i;
-            e->work_slot[k] = (uint32_t)slot;
-            k++;
-        } else {
-            int duplicate = 0;
-            vl_pending_track_t *t = pending_touch(e, o->id, &duplicate);
-            if (duplicate) {
-                e->counters.observations_invalid++;
-                continue;
-            }
-            if (!(disparity >= e->cfg.min_disparity) || depth_of(cal, disparity) > e->cfg.max_depth) {
-                e->counters.observations_low_disparity++;
-                if (t != NULL) {
-                    t->frames_seen = 0; /* no usable point to compare the next observation with */
-                }
-                continue;
-            }
-            if (t == NULL) {
-                continue; /* pending table full: the track is retried next frame */
-            }
-            double y[3], pw[3], C[9];
-            vl_stereo_compress(o, y);
-            if (t->frames_seen >= 2 && !track_consistent(e, t, y, frame_dt)) {
-                e->counters.tracks_inconsistent++;
-                t->frames_seen = 1;
-            }
-            triangulate_world(e, y, pw, C);
-            memcpy(t->point, pw, sizeof(pw));
-            memcpy(t->covariance, C, sizeof(C));
-            if (t->frames_seen < e->cfg.min_track_length) {
-                continue;
-            }
-            /* Larger disparity (nearer, better conditioned) and longer tracks go first. */
-            const uint32_t age = t->frames_seen - 1u;
-            candidates[num_candidates].obs = i;
-            candidates[num_candidates].score = disparity * (1.0 + 0.5 * (double)(age < 4u ? age : 4u));
-            num_candidates++;
-        }
+    candidates_t candidates;
+    candidates.count = 0;
+    const uint32_t k = classify_observations(e, frame, count, frame_dt, &candidates);
+    const vl_status_t st = update_with_rows(e, frame, k);
+    if (st != VL_OK) {
+        log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
+        result = st;
     }
-
-    /* 2. Outlier rejection, then the joint update with the inliers, then a second
-     * update with the outliers that agree with the corrected state. */
-    if (k > 0 && e->cfg.gate_chi2 <= 0.0) {
-        /* no outlier rejection at all (the seed's plain EKF) */
-        vl_status_t st = apply_update(e, rows, k);
-        if (st != VL_OK) {
-            log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
-            result = st;
-        }
-    } else if (k > 0) {
-        const uint32_t contradicting = gate_rows(e, rows, k);
-        vl_status_t st = VL_OK;
-        if (k >= VL_MIN_ROWS_FOR_REASSOCIATION && (double)contradicting > e->cfg.max_broken_fraction * (double)k) {
-            /* Most tracks contradict the state at once: the tracker re-associated
-             * its ids (it does so when it detects new features). None of these
-             * observations is trusted; every observed landmark restarts. */
-            e->counters.frames_reassociated++;
-            e->counters.observations_gated += k;
-            for (uint32_t i = 0; i < k; ++i) {
-                e->work_seen[e->work_slot[i]] = 2;
-                e->work_broken[e->num_broken++] = e->work_frame_obs[i];
-            }
-        } else {
-            if (e->cfg.ransac_hypotheses > 0 && k >= 2) {
-                ransac_rows(e, rows, k);
-            }
-            const uint32_t inliers = partition_rows(e, rows, k);
-            const uint32_t rest = k - inliers;
-            st = apply_update(e, rows, inliers);
-            if (st == VL_OK && rest > 0) {
-                const uint32_t rescued = rescue_outliers(e, frame, rows, inliers, rest);
-                st = apply_update(e, rows, rescued);
-                e->counters.observations_rescued += rescued;
-                e->counters.observations_gated += rest - rescued;
-            } else {
-                e->counters.observations_gated += rest;
-            }
-        }
-        if (st != VL_OK) {
-            log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
-            result = st;
-        }
-    }
-
-    /* 3. Tracks that ended or broke leave the window for the map. Walk down:
-     * marginalizing moves the last slot into the freed one. */
-    for (uint32_t s = e->num_landmarks; s-- > 0;) {
-        if (e->work_seen[s] == 2) {
-            marginalize_slot(e, s);
-            e->counters.tracks_broken++;
-            continue;
-        }
-        if (e->work_seen[s]) {
-            continue;
-        }
-        if (++e->slots[s].unseen_frames > e->cfg.max_unseen_frames) {
-            marginalize_slot(e, s);
-        }
-    }
-
-    /* A broken track restarts at once from this frame's observation. */
-    for (uint32_t b = 0; b < e->num_broken && num_candidates < VL_MAX_FRAME_FEATURES; ++b) {
-        const vl_stereo_obs_t *o = &frame->obs[e->work_broken[b]];
-        const double disparity = o->u_left - o->u_right;
-        if (!(disparity >= e->cfg.min_disparity) || depth_of(cal, disparity) > e->cfg.max_depth) {
-            continue;
-        }
-        candidates[num_candidates].obs = e->work_broken[b];
-        candidates[num_candidates].score = disparity;
-        num_candidates++;
-    }
-
-    /* 4. Admissions, best first; room is made only from landmarks not seen now. */
-    for (uint32_t i = 1; i < num_candidates; ++i) {
-        candidate_t c = candidates[i];
-        uint32_t j = i;
-        while (j > 0 && candidates[j - 1].score < c.score) {
-            candidates[j] = candidates[j - 1];
-            --j;
-        }
-        candidates[j] = c;
-    }
-    for (uint32_t i = 0; i < num_candidates; ++i) {
-        const vl_stereo_obs_t *o = &frame->obs[candidates[i].obs];
-        if (e->num_landmarks >= e->cfg.max_landmarks) {
-            int victim = -1;
-            uint32_t longest = 0;
-            for (uint32_t s = 0; s < e->num_landmarks; ++s) {
-                if (!e->work_seen[s] && e->slots[s].unseen_frames >= longest) {
-                    longest = e->slots[s].unseen_frames;
-                    victim = (int)s;
-                }
-            }
-            if (victim < 0) {
-                e->counters.landmarks_deferred += num_candidates - i;
-                break;
-            }
-            marginalize_slot(e, (uint32_t)victim);
-            e->counters.landmarks_evicted++;
-        }
-        double y[3];
-        vl_stereo_compress(o, y);
-        admit_landmark(e, o->id, y);
-        /* An admitted id leaves the pending table. */
-        for (uint32_t p = 0; p < e->num_pending; ++p) {
-            if (e->pending[p].id == o->id) {
-                e->pending[p].id = -1;
-                break;
-            }
-        }
-    }
-    pending_compact(e);
+    retire_landmarks(e);
+    admit_candidates(e, frame, &candidates);
     return result;
 }
 
