@@ -63,6 +63,7 @@ static void assert_config_equal(const vl_config_t *a, const vl_config_t *b)
     TEST_ASSERT_EQUAL_UINT32(a->max_landmarks, b->max_landmarks);
     TEST_ASSERT_EQUAL_UINT32(a->max_unseen_frames, b->max_unseen_frames);
     TEST_ASSERT_EQUAL_DOUBLE(a->max_propagation_dt, b->max_propagation_dt);
+    TEST_ASSERT_EQUAL_UINT32(a->max_update_observations, b->max_update_observations);
     TEST_ASSERT_EQUAL_DOUBLE(a->calibration.fx, b->calibration.fx);
     TEST_ASSERT_EQUAL_DOUBLE(a->calibration.fy, b->calibration.fy);
     TEST_ASSERT_EQUAL_DOUBLE(a->calibration.cx, b->calibration.cx);
@@ -99,6 +100,7 @@ static const char *k_full =
     "mode = mapping\n"
     "estimate_input_offsets = false\n"
     "max_propagation_dt = 0.25\n"
+    "max_update_observations = 20\n"
     "\n"
     "[noise]\n"
     "linear_velocity = 0.7\n"
@@ -145,6 +147,7 @@ void test_vl_config_load_ini_full_file_sets_every_key(void)
     TEST_ASSERT_EQUAL_INT(VL_MODE_MAPPING, cfg.mode);
     TEST_ASSERT_EQUAL_INT(0, cfg.estimate_input_offsets);
     TEST_ASSERT_EQUAL_DOUBLE(0.25, cfg.max_propagation_dt);
+    TEST_ASSERT_EQUAL_UINT32(20, cfg.max_update_observations);
     TEST_ASSERT_EQUAL_DOUBLE(0.7, cfg.linear_velocity_noise);
     TEST_ASSERT_EQUAL_DOUBLE(0.07, cfg.angular_velocity_noise);
     TEST_ASSERT_EQUAL_DOUBLE(0.2, cfg.linear_offset_prior);
@@ -171,7 +174,7 @@ void test_vl_config_load_ini_full_file_sets_every_key(void)
     TEST_ASSERT_TRUE(info.has_calibration);
     TEST_ASSERT_TRUE(info.override_log);
     TEST_ASSERT_EQUAL_INT(VL_PRESET_NONE, info.preset);
-    TEST_ASSERT_EQUAL_UINT(26, info.keys_set); /* all but preset */
+    TEST_ASSERT_EQUAL_UINT(27, info.keys_set); /* all but preset */
 }
 
 void test_vl_config_load_ini_example_file_equals_defaults(void)

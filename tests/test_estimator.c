@@ -569,6 +569,28 @@ void test_get_landmarks_reports_capacity_shortfall(void)
     TEST_ASSERT_EQUAL_UINT64((uint64_t)(4), (uint64_t)(count));
 }
 
+void test_update_uses_at_most_max_update_observations(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.max_update_observations = 5;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(0, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(&cfg, &frame, 0, 12, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    s.utime = 100000;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(&cfg, &frame, 100000, 12, 0); /* the same 12 tracks, seen again without motion */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(5, c->observations_used);
+    TEST_ASSERT_EQUAL_UINT64(7, c->observations_deferred);
+    TEST_ASSERT_EQUAL_UINT32(12, vl_window_size(&est)); /* deferred, not dropped */
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -588,5 +610,6 @@ int main(void)
     RUN_TEST(test_window_never_exceeds_its_limit_and_keeps_observed_landmarks);
     RUN_TEST(test_window_admits_the_largest_disparity_first);
     RUN_TEST(test_get_landmarks_reports_capacity_shortfall);
+    RUN_TEST(test_update_uses_at_most_max_update_observations);
     return UNITY_END();
 }

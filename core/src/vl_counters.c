@@ -17,6 +17,7 @@ size_t vl_counters_list(const vl_counters_t *c, vl_counter_entry_t out[VL_NUM_CO
     VL_COUNTER(observations_used);
     VL_COUNTER(observations_gated);
     VL_COUNTER(observations_rescued);
+    VL_COUNTER(observations_deferred);
     VL_COUNTER(observations_behind_camera);
     VL_COUNTER(landmarks_initialized);
     VL_COUNTER(landmarks_deferred);

@@ -868,16 +868,30 @@ static vl_status_t update_with_rows(vl_estimator_t *e, const vl_stereo_frame_t *
     if (e->cfg.ransac_hypotheses > 0 && k >= 2) {
         ransac_rows(e, rows, k);
     }
-    const uint32_t inliers = partition_rows(e, rows, k);
+    uint32_t inliers = partition_rows(e, rows, k);
     const uint32_t rest = k - inliers;
+    const uint32_t cap = e->cfg.max_update_observations;
+    if (cap > 0 && inliers > cap) {
+        /* A time bound: an evenly spread subset of the inliers; the others stay
+         * in the window and are used in later frames. */
+        for (uint32_t i = 0; i < cap; ++i) {
+            swap_rows(e, rows, i, (uint32_t)(((uint64_t)i * inliers) / cap));
+        }
+        e->counters.observations_deferred += inliers - cap;
+        inliers = cap;
+    }
     vl_status_t st = apply_update(e, rows, inliers);
     if (st != VL_OK || rest == 0) {
         e->counters.observations_gated += rest;
         return st;
     }
-    const uint32_t rescued = rescue_outliers(e, frame, rows, inliers, rest);
+    uint32_t rescued = rescue_outliers(e, frame, rows, inliers, rest);
     e->counters.observations_rescued += rescued;
     e->counters.observations_gated += rest - rescued;
+    if (cap > 0 && inliers + rescued > cap) {
+        e->counters.observations_deferred += inliers + rescued - cap;
+        rescued = cap - inliers;
+    }
     return apply_update(e, rows, rescued);
 }
 

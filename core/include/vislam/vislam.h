@@ -132,6 +132,7 @@ typedef struct {
                                          fail the gate is a tracker re-association: all restart (0..1] */
     uint32_t ransac_hypotheses;     /**< 1-point RANSAC hypotheses per frame; 0 gates each observation alone */
     double ransac_threshold;        /**< px, residual a RANSAC hypothesis must leave for an observation to support it */
+    uint32_t max_update_observations; /**< most observations one update uses (a time bound); 0: all */
 
     uint32_t max_landmarks;         /**< active window, 1..VL_MAX_LANDMARKS */
     uint32_t max_unseen_frames;     /**< frames a landmark may go unobserved before it is marginalized */
@@ -197,6 +198,7 @@ typedef struct {
     uint64_t observations_used;         /**< applied in an update */
     uint64_t observations_gated;        /**< refused as outliers (RANSAC or gate, and not rescued) */
     uint64_t observations_rescued;      /**< outliers of the first pass accepted after the correction */
+    uint64_t observations_deferred;     /**< inliers left out of an update by max_update_observations */
     uint64_t observations_behind_camera;/**< predicted behind the camera: not used */
     uint64_t landmarks_initialized;     /**< admitted to the window */
     uint64_t landmarks_deferred;        /**< admissions postponed because the window was full */
@@ -217,7 +219,7 @@ typedef struct {
 } vl_counter_entry_t;
 
 /** Number of members of vl_counters_t. */
-#define VL_NUM_COUNTERS 23
+#define VL_NUM_COUNTERS 24
 
 /** Per-landmark bookkeeping of the window (internal; read with vl_get_landmarks). */
 typedef struct {
