@@ -53,6 +53,7 @@ typedef struct {
     float position[3];
     float sigma;
     uint32_t observations;
+    int64_t first_utime;
 } map_point_t;
 
 typedef struct {
@@ -131,7 +132,8 @@ static void usage(FILE *f)
             "\n"
             "  --trajectory FILE    TUM trajectory, one line per accepted frame:\n"
             "                       time tx ty tz qx qy qz qw (IMU frame in world, time in s)\n"
-            "  --map FILE           ASCII PLY of the marginalized landmarks (x y z id sigma observations)\n"
+            "  --map FILE           ASCII PLY of the marginalized landmarks\n"
+            "                       (x y z id sigma observations first_time)\n"
             "  --config FILE        INI configuration on top of the defaults (see tools/vislam.ini)\n"
             "  --preset NAME        default|seed: start from this preset (conflicts with a different\n"
             "                       [estimator] preset in the config file)\n"
@@ -226,6 +228,7 @@ static void map_sink(void *user, const vl_landmark_t *lm)
     double trace = lm->covariance[0] + lm->covariance[4] + lm->covariance[8];
     pt->sigma = (float)sqrt(trace > 0.0 ? trace : 0.0);
     pt->observations = lm->observations;
+    pt->first_utime = lm->first_utime;
 }
 
 static const char *level_name(vl_log_level_t level)
@@ -347,12 +350,14 @@ static int write_ply(const char *path, const map_t *m)
             "property int id\n"
             "property float sigma\n"
             "property uint observations\n"
+            "property double first_time\n"
             "end_header\n",
             m->count);
     for (size_t i = 0; i < m->count; ++i) {
         const map_point_t *p = &m->points[i];
-        fprintf(f, "%.9g %.9g %.9g %d %.9g %u\n", (double)p->position[0], (double)p->position[1],
-                (double)p->position[2], (int)p->id, (double)p->sigma, (unsigned)p->observations);
+        fprintf(f, "%.9g %.9g %.9g %d %.9g %u %lld.%06lld\n", (double)p->position[0], (double)p->position[1],
+                (double)p->position[2], (int)p->id, (double)p->sigma, (unsigned)p->observations,
+                (long long)(p->first_utime / 1000000), (long long)(p->first_utime % 1000000));
     }
     int bad = ferror(f);
     if (fclose(f) != 0 || bad) {

@@ -1,0 +1,574 @@
+#!/usr/bin/env bash
+# Benchmarks that print the figures (accuracy, robustness, window size, timing, daemon latency,
+# trajectory figures). Numbers only: no timing threshold ever fails the run.
+#
+#   tools/bench.sh                          every section (about 5-10 minutes)
+#   tools/bench.sh --quick                  shorter variants (about 2-3 minutes)
+#   tools/bench.sh --section timing ...     only these sections (repeatable, or comma-separated):
+#                                           accuracy sweep window timing daemon figures
+# Options: --data DIR (default ../shared/data), --build-dir DIR (default build-bench),
+#          --no-build (use the build as it is), --cyclictest-seconds N (default 10, quick 5)
+#
+# Output: out/bench/ (git-ignored): report.md (the tables below, and every command run),
+# logs/ (seed datasets converted with tools/npz2lcm), one folder per section, figures/.
+# The seed datasets are read from --data; sections or rows that need them are skipped with a
+# note when it is absent. Nothing derived from the datasets is written outside out/.
+# Timing sections need root for cyclictest (SCHED_FIFO) and the daemon section for
+# `unshare --net` (a private network namespace for LCM multicast); both skip with a note.
+set -uo pipefail
+
+REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$REPO_ROOT" || exit 2
+SELF="tools/bench.sh"
+LCM_URL='udpm://239.255.76.67:7667?ttl=0'
+
+# ---- inside the private network namespace: one vislamd + vislam-replay run -------------------
+# bench.sh --daemon-inner BIN LOG PREFIX ALLOC_SO SPEED  (only via unshare, from section_daemon)
+daemon_inner() {
+  local bin=$1 log=$2 prefix=$3 alloc=$4 speed=$5 cmds daemon replay_rc daemon_rc
+  local preload=() daemon_cmd replay_cmd
+  cmds="${VL_BENCH_CMDS:-/dev/null}"
+  ip link set lo up multicast on || return 3
+  ip route add 224.0.0.0/4 dev lo || return 3
+  [ -n "$alloc" ] && preload=(env LD_PRELOAD="$alloc")
+  daemon_cmd=("${preload[@]}" "$bin/vislamd" --lcm-url "$LCM_URL" --trajectory "$prefix.tum")
+  replay_cmd=("$bin/vislam-replay" "$log" --lcm-url "$LCM_URL" --lockstep --speed "$speed"
+    --wait-for VISLAM_STATUS --timeout-ms 5000 --summary-json "$prefix.replay.json")
+  {
+    echo "# in a private network namespace (unshare --net):"
+    echo "ip link set lo up multicast on; ip route add 224.0.0.0/4 dev lo"
+    printf '%q ' "${daemon_cmd[@]}"; echo "2>$prefix.vislamd.log &"
+    printf '%q ' "${replay_cmd[@]}"; echo "2>$prefix.replay.log"
+    echo "kill -TERM \$vislamd_pid; wait"
+  } >>"$cmds"
+  "${daemon_cmd[@]}" 2>"$prefix.vislamd.log" &
+  daemon=$!
+  "${replay_cmd[@]}" 2>"$prefix.replay.log"
+  replay_rc=$?
+  kill -TERM "$daemon" 2>/dev/null
+  wait "$daemon"
+  daemon_rc=$?
+  echo "replay exit $replay_rc, vislamd exit $daemon_rc"
+  [ "$replay_rc" -eq 0 ] && [ "$daemon_rc" -eq 0 ]
+}
+if [ "${1:-}" = "--daemon-inner" ]; then
+  shift
+  daemon_inner "$@"
+  exit
+fi
+
+# ---- options ------------------------------------------------------------------------------------
+ALL_SECTIONS=(accuracy sweep window timing daemon figures)
+QUICK=0
+SECTIONS=()
+DATA="../shared/data"
+BUILD="build-bench"
+DO_BUILD=1
+CYCLIC_S=""
+usage() { sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; }
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --quick) QUICK=1; shift ;;
+    --section) [ $# -ge 2 ] || { echo "$SELF: --section needs a name" >&2; exit 2; }
+      IFS=',' read -r -a s <<<"$2"; SECTIONS+=("${s[@]}"); shift 2 ;;
+    --data) DATA="$2"; shift 2 ;;
+    --build-dir) BUILD="$2"; shift 2 ;;
+    --no-build) DO_BUILD=0; shift ;;
+    --cyclictest-seconds) CYCLIC_S="$2"; shift 2 ;;
+    -h|--help) usage; exit 0 ;;
+    *) echo "$SELF: unknown option $1 (see --help)" >&2; exit 2 ;;
+  esac
+done
+[ ${#SECTIONS[@]} -eq 0 ] && SECTIONS=("${ALL_SECTIONS[@]}")
+for s in "${SECTIONS[@]}"; do
+  case " ${ALL_SECTIONS[*]} " in *" $s "*) ;; *) echo "$SELF: unknown section '$s' (${ALL_SECTIONS[*]})" >&2; exit 2 ;; esac
+done
+[ -z "$CYCLIC_S" ] && { [ "$QUICK" -eq 1 ] && CYCLIC_S=5 || CYCLIC_S=10; }
+
+OUT="out/bench"
+BIN="$BUILD/bin"
+PY=".venv/bin/python"
+REPORT="$OUT/report.md"
+mkdir -p "$OUT/logs" "$OUT/sections" "$OUT/commands"
+HAVE_DATA=0
+[ -f "$DATA/0022.npz" ] && [ -f "$DATA/0027.npz" ] && [ -f "$DATA/0034.npz" ] && HAVE_DATA=1
+GT07="$DATA/gt/kitti_odometry_07.txt"
+WARNINGS=0
+
+# ---- helpers ------------------------------------------------------------------------------------
+SECTION=""
+SEC_MD=""
+SEC_CMDS=""
+say() { printf '%s\n' "$*" | tee -a "$SEC_MD"; }            # to the terminal and the report
+note() { printf '%s\n' "$*"; }                               # terminal only
+warn() { printf 'WARNING: %s\n' "$*" | tee -a "$SEC_MD" >&2; WARNINGS=$((WARNINGS + 1)); }
+# rec CMD...: append the command line to this section's command list
+rec() { printf '%q ' "$@" | sed 's/ $//' >>"$SEC_CMDS"; echo >>"$SEC_CMDS"; }
+# run LOGFILE CMD...: record, run with stdout and stderr appended to LOGFILE; warn on failure
+run() {
+  local logf=$1
+  shift
+  rec "$@"
+  "$@" >>"$logf" 2>&1
+  local rc=$?
+  [ $rc -ne 0 ] && warn "exit $rc: $* (see $logf)"
+  return $rc
+}
+table() { "$PY" -m vislam_tools.bench_report "$@" | tee -a "$SEC_MD"; }
+begin_section() {
+  SECTION=$1
+  SEC_MD="$OUT/sections/$1.md"
+  SEC_CMDS="$OUT/commands/$1.txt"
+  : >"$SEC_MD"
+  : >"$SEC_CMDS"
+  SEC_START=$SECONDS
+  echo
+  say "## $2"
+  say ""
+}
+end_section() {
+  local t=$((SECONDS - SEC_START))
+  SECTION_TIMES+=("$SECTION ${t}s")
+  if [ -s "$SEC_CMDS" ]; then
+    {
+      echo
+      echo "Commands (from the repository root):"
+      echo
+      echo '```'
+      cat "$SEC_CMDS"
+      echo '```'
+    } >>"$SEC_MD"
+    note "(commands: $SEC_CMDS)"
+  fi
+  say ""
+  say "Section time: ${t} s"
+}
+need_data() {
+  if [ "$HAVE_DATA" -eq 0 ]; then
+    say "SKIPPED ($1): the seed datasets are not in $DATA (0022.npz, 0027.npz, 0034.npz);"
+    say "pass --data DIR or put them at ../shared/data relative to the repository."
+    return 1
+  fi
+}
+# logfor NAME: the converted LCM log of a seed dataset (converted once, again when the npz is newer)
+logfor() {
+  local npz="$DATA/$1.npz" log="$OUT/logs/$1.lcmlog"
+  if [ ! -s "$log" ] || [ "$npz" -nt "$log" ]; then
+    run "$OUT/logs/npz2lcm.log" tools/npz2lcm "$npz" "$log" >/dev/null || return 1
+  else
+    rec tools/npz2lcm "$npz" "$log"
+  fi
+  echo "$log"
+}
+# ate_run DIR TAG LOG GT CALIB|"" ROWS LABEL DATA SETTINGS -- vislam-run options...
+# runs vislam-run, evaluates against GT, appends a row for `bench_report ate`
+ate_run() {
+  local dir=$1 tag=$2 log=$3 gt=$4 calib=$5 rows=$6 label=$7 data=$8 settings=$9
+  shift 10
+  local calib_args=()
+  [ -n "$calib" ] && calib_args=(--calib "$calib")
+  rm -f "$dir/$tag.ate.json" "$dir/$tag.stats.json"
+  run "$dir/runs.log" "$BIN/vislam-run" "$log" --trajectory "$dir/$tag.tum" --stats-json "$dir/$tag.stats.json" \
+    --quiet "$@" &&
+    run "$dir/runs.log" tools/evaluate ate --estimate "$dir/$tag.tum" --gt "$gt" "${calib_args[@]}" \
+      --json "$dir/$tag.ate.json"
+  printf '%s\t%s\t%s\t%s\t%s\n' "$label" "$data" "$settings" "$dir/$tag.ate.json" "$dir/$tag.stats.json" >>"$rows"
+}
+
+# ---- set-up and build -------------------------------------------------------------------------
+T0=$SECONDS
+SECTION_TIMES=()
+if [ "$DO_BUILD" -eq 1 ]; then
+  # shellcheck source=tools/setup.sh
+  . tools/setup.sh
+  set +e
+  vl_setup_all >/dev/null || { echo "$SELF: set-up failed (tools/setup.sh)" >&2; exit 1; }
+  echo "== build ($BUILD, Release)"
+  if ! { cmake -S . -B "$BUILD" -DCMAKE_BUILD_TYPE=Release -DUNITY_ROOT="$VL_UNITY_ROOT" >"$OUT/build.log" 2>&1 &&
+    cmake --build "$BUILD" -j2 >>"$OUT/build.log" 2>&1; }; then
+    echo "$SELF: build failed, see $OUT/build.log" >&2
+    exit 1
+  fi
+fi
+for b in vislam-run vislamd vislam-replay; do
+  [ -x "$BIN/$b" ] || { echo "$SELF: $BIN/$b missing (build first, or drop --no-build)" >&2; exit 1; }
+done
+[ -x "$PY" ] || { echo "$SELF: no venv at .venv (run tools/setup.sh)" >&2; exit 1; }
+VISLAM_BUILD_DIR="$(cd "$BUILD" && pwd)"
+export VISLAM_BUILD_DIR
+export PYTHONPATH="$REPO_ROOT/tools${PYTHONPATH:+:$PYTHONPATH}"
+native="$(sed -n 's/^VL_NATIVE:BOOL=//p' "$BUILD/CMakeCache.txt" 2>/dev/null)"
+max_lm="$(sed -n 's/^VL_MAX_LANDMARKS:STRING=//p' "$BUILD/CMakeCache.txt" 2>/dev/null)"
+
+# ---- 1. accuracy ---------------------------------------------------------------------------------
+section_accuracy() {
+  begin_section accuracy "1. Accuracy (ATE after a rigid SE(3) alignment, RPE)"
+  local d="$OUT/accuracy"
+  mkdir -p "$d"
+  : >"$d/runs.log"
+  local rows="$d/rows.tsv"
+  : >"$rows"
+  local variants=("dr|dead reckoning|--mode imu_only|--mode imu_only"
+    "mapping|mapping|--mode mapping|--mode mapping"
+    "seed|seed preset|--preset seed|--preset seed"
+    "slam|default SLAM|(defaults)|")
+  local v tag label settings opts log
+  if need_data "KITTI 0027 rows"; then
+    if [ -f "$GT07" ] && log=$(logfor 0027); then
+      for v in "${variants[@]}"; do
+        IFS='|' read -r tag label settings opts <<<"$v"
+        # shellcheck disable=SC2086 # opts is a list of words
+        ate_run "$d" "0027_$tag" "$log" "$GT07" "$DATA/0027.npz" "$rows" "$label" 0027 "$settings" -- $opts
+      done
+    else
+      say "SKIPPED (0027): no ground truth at $GT07"
+    fi
+  fi
+  for v in "${variants[@]}"; do
+    IFS='|' read -r tag label settings opts <<<"$v"
+    # shellcheck disable=SC2086
+    ate_run "$d" "sample_$tag" data/sample.lcmlog data/sample_truth.tum "" "$rows" "$label" sample "$settings" -- $opts
+  done
+  say "0027 against KITTI odometry 07 (left camera poses mapped to the IMU with the npz's cam_T_imu);"
+  say "sample = data/sample.lcmlog (simulated) against data/sample_truth.tum. RPE: RMSE of the relative"
+  say "translation / rotation error over 1 and 10 steps. Counters from vislam-run --stats-json."
+  say ""
+  table ate "$rows"
+  end_section
+}
+
+# ---- 2. sweep ------------------------------------------------------------------------------------
+ini_value() { # ini_value SECTION KEY: the default configuration's value
+  "$BIN/vislam-run" --print-config | awk -v s="[$1]" -v k="$2" '
+    /^\[/ { cur = $1 } cur == s && $1 == k && $2 == "=" { print $3; exit }'
+}
+section_sweep() {
+  begin_section sweep "2. Noise robustness and ablations (0027, ATE)"
+  need_data "the sweep runs on 0027" || { end_section; return; }
+  [ -f "$GT07" ] || { say "SKIPPED: no ground truth at $GT07"; end_section; return; }
+  local d="$OUT/sweep" log
+  mkdir -p "$d"
+  : >"$d/runs.log"
+  log=$(logfor 0027) || { end_section; return; }
+  local lv av px
+  lv=$(ini_value noise linear_velocity)
+  av=$(ini_value noise angular_velocity)
+  px=$(ini_value noise pixel)
+  mul() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.6g", a * b }'; }
+  # name|section|key=value;key=value (noise keys scaled from the defaults)
+  local sweeps=("default|" 
+    "lv_x0.5|noise|linear_velocity=$(mul "$lv" 0.5)"
+    "lv_x2|noise|linear_velocity=$(mul "$lv" 2)"
+    "av_x0.5|noise|angular_velocity=$(mul "$av" 0.5)"
+    "av_x2|noise|angular_velocity=$(mul "$av" 2)"
+    "px_x0.5|noise|pixel=$(mul "$px" 0.5)"
+    "px_x2|noise|pixel=$(mul "$px" 2)"
+    "all_x0.5|noise|linear_velocity=$(mul "$lv" 0.5);angular_velocity=$(mul "$av" 0.5);pixel=$(mul "$px" 0.5)"
+    "all_x2|noise|linear_velocity=$(mul "$lv" 2);angular_velocity=$(mul "$av" 2);pixel=$(mul "$px" 2)")
+  local ablations=("no_offsets|estimator|estimate_input_offsets=false"
+    "no_ransac|outliers|ransac_hypotheses=0"
+    "no_restarts|outliers|max_broken_fraction=1.0"
+    "plain_ekf|outliers|gate_chi2=0"
+    "track_len_1|landmarks|min_track_length=1")
+  # the update's observation cap, where this build has it (0: every inlier in one update)
+  [ -n "$(ini_value estimator max_update_observations)" ] &&
+    ablations+=("all_obs|estimator|max_update_observations=0")
+  run_list() { # run_list ROWS ENTRY...
+    local rows=$1 e name sec kvs settings kv
+    shift
+    : >"$rows"
+    for e in "$@"; do
+      IFS='|' read -r name sec kvs <<<"$e"
+      if [ -z "$sec" ]; then
+        ate_run "$d" "$name" "$log" "$GT07" "$DATA/0027.npz" "$rows" "$name" 0027 "(defaults)" --
+        continue
+      fi
+      { echo "; tools/bench.sh sweep: $name (on top of the defaults)"; echo "[$sec]"; } >"$d/$name.ini"
+      settings=""
+      IFS=';' read -r -a kvarr <<<"$kvs"
+      for kv in "${kvarr[@]}"; do
+        echo "${kv%%=*} = ${kv#*=}" >>"$d/$name.ini"
+        settings+="${settings:+, }${kv%%=*} = ${kv#*=}"
+      done
+      ate_run "$d" "$name" "$log" "$GT07" "$DATA/0027.npz" "$rows" "$name" 0027 "[$sec] $settings" -- --config "$d/$name.ini"
+    done
+  }
+  say "Noise standard deviations of the filter, one at a time x0.5 and x2, then all three together"
+  say "(defaults: linear_velocity $(mul "$lv" 1) m/s, angular_velocity $(mul "$av" 1) rad/s, pixel $(mul "$px" 1) px)."
+  say "INI files: $d/*.ini, each on top of the defaults (vislam-run --config)."
+  say ""
+  run_list "$d/noise.tsv" "${sweeps[@]}"
+  table ate "$d/noise.tsv"
+  say ""
+  say "Ablations (one setting changed from the defaults):"
+  say ""
+  run_list "$d/ablations.tsv" "${ablations[@]}"
+  { head -n 1 "$d/noise.tsv"; cat "$d/ablations.tsv"; } >"$d/ablations_all.tsv" # the default row first
+  table ate "$d/ablations_all.tsv"
+  end_section
+}
+
+# ---- 3. window ------------------------------------------------------------------------------------
+section_window() {
+  begin_section window "3. Window size ([landmarks] max_landmarks): accuracy on 0027, update time on 0034"
+  need_data "0027 and 0034" || { end_section; return; }
+  local d="$OUT/window" l27 l34 n rows
+  mkdir -p "$d"
+  : >"$d/runs.log"
+  rows="$d/rows.tsv"
+  : >"$rows"
+  if ! l27=$(logfor 0027) || ! l34=$(logfor 0034); then
+    end_section
+    return
+  fi
+  for n in 16 32 64 128; do
+    if [ -n "$max_lm" ] && [ "$n" -gt "$max_lm" ]; then
+      say "max_landmarks $n: above this build's capacity VL_MAX_LANDMARKS=$max_lm, skipped"
+      continue
+    fi
+    rm -f "$d/0027_w$n.ate.json" "$d/0027_w$n.stats.json" "$d/0034_w$n.stats.json"
+    run "$d/runs.log" "$BIN/vislam-run" "$l27" --max-landmarks "$n" --trajectory "$d/0027_w$n.tum" \
+      --stats-json "$d/0027_w$n.stats.json" --quiet &&
+      run "$d/runs.log" tools/evaluate ate --estimate "$d/0027_w$n.tum" --gt "$GT07" --calib "$DATA/0027.npz" \
+        --json "$d/0027_w$n.ate.json"
+    run "$d/runs.log" "$BIN/vislam-run" "$l34" --max-landmarks "$n" --trajectory "$d/0034_w$n.tum" \
+      --stats-json "$d/0034_w$n.stats.json" --timing --quiet
+    printf '%s\t%s\t%s\t%s\n' "$n" "$d/0027_w$n.ate.json" "$d/0027_w$n.stats.json" "$d/0034_w$n.stats.json" >>"$rows"
+  done
+  say "Wall time per call from vislam-run --timing (single run each, as fast as possible, build $BUILD,"
+  say "VL_NATIVE=${native:-?}). Counters from --stats-json: landmarks deferred (new landmarks refused"
+  say "for lack of room), landmarks evicted (pushed out of the window early to make room), observations"
+  say "deferred (left out of a frame's update by [estimator] max_update_observations, where the build has it)."
+  say ""
+  table window "$rows"
+  end_section
+}
+
+# ---- 4. timing ------------------------------------------------------------------------------------
+section_timing() {
+  begin_section timing "4. Timing of the core (default window)"
+  local d="$OUT/timing" log name i rows
+  mkdir -p "$d"
+  : >"$d/runs.log"
+  rows="$d/rows.tsv"
+  : >"$rows"
+  if [ "$HAVE_DATA" -eq 1 ] && log=$(logfor 0034); then
+    name=0034
+  else
+    say "(seed datasets absent: timing on the sample log instead of 0034)"
+    log=data/sample.lcmlog
+    name=sample
+  fi
+  say "Host: $(nproc) CPUs, $(sed -n 's/^model name\s*: //p' /proc/cpuinfo | head -n 1); load average before: $(cut -d' ' -f1-3 /proc/loadavg)."
+  say ""
+  say "### Wall time per call on $name (vislam-run --timing, 3 runs, build $BUILD, VL_NATIVE=${native:-?})"
+  say ""
+  for i in 1 2 3; do
+    rm -f "$d/${name}_run$i.stats.json"
+    run "$d/runs.log" "$BIN/vislam-run" "$log" --trajectory "$d/$name.tum" --stats-json "$d/${name}_run$i.stats.json" \
+      --timing --quiet
+    printf 'run %s\t%s\n' "$i" "$d/${name}_run$i.stats.json" >>"$rows"
+  done
+  table timing "$rows" --json "$d/worst.json"
+  local worst
+  worst=$("$PY" -c 'import json,sys; w=json.load(open(sys.argv[1]))["worst_us"]; print("%.0f" % w if w else "n/a")' "$d/worst.json" 2>/dev/null || echo n/a)
+
+  # scheduling-latency floor of this machine, measured right after the runs above
+  say ""
+  say "### Scheduling latency floor (cyclictest, right after the runs above)"
+  say ""
+  local cyc=""
+  if [ "$(id -u)" -ne 0 ]; then
+    say "SKIPPED: cyclictest needs root for SCHED_FIFO priority 80."
+  else
+    if ! command -v cyclictest >/dev/null 2>&1; then
+      note "installing rt-tests (cyclictest)"
+      DEBIAN_FRONTEND=noninteractive apt-get install -y rt-tests >"$d/apt.log" 2>&1 ||
+        { apt-get update >>"$d/apt.log" 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y rt-tests >>"$d/apt.log" 2>&1; }
+    fi
+    if command -v cyclictest >/dev/null 2>&1; then
+      # rt-tests 2.x dropped -n (clock_nanosleep is the default and only mode)
+      : >"$d/cyclictest.log"
+      run "$d/cyclictest.log" cyclictest -m -q -D "$CYCLIC_S" -t 2 -p 80 -i 1000
+      cyc=$(awk '{ for (i = 1; i < NF; i++) if ($i == "Max:" && $(i + 1) > m) m = $(i + 1) } END { if (m != "") print m }' "$d/cyclictest.log")
+      say '```'
+      grep '^T:' "$d/cyclictest.log" | tee -a "$SEC_MD"
+      say '```'
+    else
+      say "SKIPPED: cyclictest unavailable (apt-get install rt-tests failed, see $d/apt.log)."
+    fi
+  fi
+  say ""
+  say "Worst single core call (wall): ${worst} us; cyclictest max latency (${CYCLIC_S} s, 2 threads, SCHED_FIFO 80,"
+  say "1 ms interval, mlockall): ${cyc:-n/a} us. The core runs at normal priority in vislam-run, so its"
+  say "worst case includes preemption; cyclictest shows what the kernel alone costs on this host."
+
+  # instruction counts
+  say ""
+  say "### Instruction counts (callgrind)"
+  say ""
+  local vb="$OUT/build-valgrind" cglog="$log" cgname=$name
+  if ! command -v valgrind >/dev/null 2>&1; then
+    say "SKIPPED: valgrind not installed."
+  else
+    if [ "$QUICK" -eq 1 ]; then
+      cglog=data/sample.lcmlog
+      cgname=sample
+    fi
+    note "building the portable variant for valgrind ($vb)"
+    : >"$d/build-valgrind.log"
+    local unity="${VL_UNITY_ROOT:-$REPO_ROOT/.deps/unity}"
+    unity="${unity#"$REPO_ROOT"/}"
+    # valgrind 3.19 cannot decode AVX-512 (and some AVX) encodings that -march=native emits here
+    if run "$d/build-valgrind.log" cmake -S . -B "$vb" -DCMAKE_BUILD_TYPE=Release -DVL_NATIVE=OFF \
+      -DUNITY_ROOT="$unity" &&
+      run "$d/build-valgrind.log" cmake --build "$vb" -j2 --target vislam-run; then
+      rm -rf "$d/callgrind"
+      mkdir -p "$d/callgrind"
+      : >"$d/callgrind.log"
+      # one dump at the end of every vl_update: each holds one frame's propagation and update
+      run "$d/callgrind.log" valgrind --tool=callgrind --dump-instr=no --dump-after=vl_update \
+        --callgrind-out-file="$d/callgrind/callgrind.out" \
+        "$vb/bin/vislam-run" "$cglog" --trajectory "$d/callgrind.tum" --quiet
+      say "On $cgname, portable build (VL_NATIVE=OFF: x86-64 baseline, SSE2; valgrind cannot run the"
+      say "native AVX-512 build), inclusive Ir of the calls from main (log reading and output excluded):"
+      say ""
+      table callgrind "$d/callgrind" --json "$d/callgrind.json"
+      rm -rf "$d/callgrind" # about 50 MB of per-frame dumps; the totals are in callgrind.json
+    else
+      warn "portable build for valgrind failed (see $d/build-valgrind.log)"
+    fi
+  fi
+
+  # state size
+  say ""
+  say "### State size"
+  say ""
+  cat >"$d/sizeof.c" <<'EOF'
+#include <stdio.h>
+#include "vislam/vislam.h"
+int main(void)
+{
+    printf("%zu %d\n", sizeof(vl_estimator_t), VL_MAX_LANDMARKS);
+    return 0;
+}
+EOF
+  local def=()
+  [ -n "$max_lm" ] && def=(-DVL_MAX_LANDMARKS="$max_lm")
+  if run "$d/runs.log" cc -std=c99 -Icore/include "${def[@]}" "$d/sizeof.c" -o "$d/sizeof"; then
+    local sz cap
+    read -r sz cap < <("$d/sizeof")
+    say "sizeof(vl_estimator_t) = $sz bytes ($(awk -v s="$sz" 'BEGIN { printf "%.2f MiB", s / 1048576 }')) at VL_MAX_LANDMARKS = $cap."
+  fi
+  end_section
+}
+
+# ---- 5. daemon ------------------------------------------------------------------------------------
+section_daemon() {
+  begin_section daemon "5. vislamd end to end (vislam-replay --lockstep at 1x over LCM)"
+  local d="$OUT/daemon" rows alloc
+  mkdir -p "$d"
+  rows="$d/rows.tsv"
+  : >"$rows"
+  if ! unshare --net true 2>/dev/null || ! command -v ip >/dev/null 2>&1; then
+    say "SKIPPED: needs a private network namespace (unshare --net: root or user namespaces) and ip (iproute2)."
+    end_section
+    return
+  fi
+  alloc=$(find "$BUILD" -name 'libvl_alloc_counter.so' -print -quit 2>/dev/null)
+  [ -z "$alloc" ] && say "(no libvl_alloc_counter.so under $BUILD: allocations not counted)"
+  local runs=("sample|data/sample.lcmlog")
+  if [ "$QUICK" -eq 1 ]; then
+    say "(--quick: sample log only; the full run also replays 0034 at 1x, about 2 minutes)"
+  elif [ "$HAVE_DATA" -eq 1 ]; then
+    local l34
+    l34=$(logfor 0034) && runs+=("0034|$l34")
+  else
+    say "SKIPPED (0034): the seed datasets are not in $DATA."
+  fi
+  local r name log
+  for r in "${runs[@]}"; do
+    IFS='|' read -r name log <<<"$r"
+    note "replaying $name at 1x into vislamd ($(wc -c <"$log") bytes)"
+    rm -f "$d/$name.replay.json" "$d/$name.vislamd.log"
+    echo "# $name" >>"$SEC_CMDS"
+    if ! VL_BENCH_CMDS="$SEC_CMDS" unshare --net bash "$SELF" --daemon-inner "$BIN" "$log" "$d/$name" "$alloc" 1 \
+      >"$d/$name.inner.log" 2>&1; then
+      warn "daemon run on $name failed: $(tail -n 1 "$d/$name.inner.log") (see $d/$name.*.log)"
+    fi
+    printf '%s\t%s\t%s\n' "$name" "$d/$name.vislamd.log" "$d/$name.replay.json" >>"$rows"
+  done
+  say "LCM $LCM_URL on the loopback of a private network namespace; vislamd at"
+  say "normal priority with its default options (mlockall), LD_PRELOAD allocation counter. Step latency:"
+  say "vislamd's, decode to publish; end-to-end: vislam-replay's, frame published to its pose received."
+  say "Budget: the sensor period."
+  say ""
+  table daemon "$rows"
+  end_section
+}
+
+# ---- 6. figures -----------------------------------------------------------------------------------
+section_figures() {
+  begin_section figures "6. Figures (trajectory, dead reckoning, map; animation)"
+  local d="$OUT/figures" names=() name log gt
+  mkdir -p "$d"
+  : >"$d/runs.log"
+  if need_data "0022, 0027, 0034"; then
+    names=(0022 0027 0034)
+  fi
+  names+=(sample)
+  for name in "${names[@]}"; do
+    gt=()
+    if [ "$name" = sample ]; then
+      log=data/sample.lcmlog
+      gt=(--gt data/sample_truth.tum)
+    else
+      log=$(logfor "$name") || continue
+      [ "$name" = 0027 ] && [ -f "$GT07" ] && gt=(--gt "$GT07" --calib "$DATA/0027.npz")
+    fi
+    echo "# $name" >>"$SEC_CMDS"
+    run "$d/runs.log" "$BIN/vislam-run" "$log" --trajectory "$d/$name.tum" --map "$d/$name.ply" --quiet &&
+      run "$d/runs.log" "$BIN/vislam-run" "$log" --mode imu_only --trajectory "$d/${name}_dr.tum" --quiet &&
+      run "$d/runs.log" tools/evaluate plot --estimate "$d/$name.tum" --dead-reckoning "$d/${name}_dr.tum" \
+        --map "$d/$name.ply" "${gt[@]}" --out "$d/$name.png" &&
+      run "$d/runs.log" tools/evaluate animate --estimate "$d/$name.tum" --dead-reckoning "$d/${name}_dr.tum" \
+        --map "$d/$name.ply" "${gt[@]}" --out "$d/$name.gif"
+    if [ -f "$d/$name.png" ] && [ -f "$d/$name.gif" ]; then
+      say "- $name: $d/$name.png, $d/$name.gif$([ ${#gt[@]} -gt 0 ] && echo " (with ground truth)")"
+    fi
+  done
+  end_section
+}
+
+# ---- main -----------------------------------------------------------------------------------------
+echo "== vislam benchmarks: ${SECTIONS[*]}$([ "$QUICK" -eq 1 ] && echo " (quick)")"
+[ "$HAVE_DATA" -eq 0 ] && echo "   NOTE: no seed datasets in $DATA: the parts that need them are skipped"
+for s in "${ALL_SECTIONS[@]}"; do
+  case " ${SECTIONS[*]} " in *" $s "*) ;; *) continue ;; esac
+  case $s in
+    accuracy) section_accuracy ;;
+    sweep) section_sweep ;;
+    window) section_window ;;
+    timing) section_timing ;;
+    daemon) section_daemon ;;
+    figures) section_figures ;;
+  esac
+done
+
+TOTAL=$((SECONDS - T0))
+{
+  echo "# vislam benchmarks"
+  echo
+  echo "Generated by \`$SELF$([ "$QUICK" -eq 1 ] && echo " --quick")$([ ${#SECTIONS[@]} -ne ${#ALL_SECTIONS[@]} ] && printf ' --section %s' "${SECTIONS[@]}")\`"
+  echo "on $(date -u '+%Y-%m-%d %H:%M UTC'), commit $(git rev-parse --short HEAD 2>/dev/null || echo '?')$(git diff --quiet HEAD -- core platform tools 2>/dev/null || echo ' (with local changes)')."
+  echo "Host: $(nproc) CPUs, $(sed -n 's/^model name\s*: //p' /proc/cpuinfo | head -n 1), Linux $(uname -r)."
+  echo "Build: $BUILD (Release, VL_NATIVE=${native:-?}, VL_MAX_LANDMARKS=${max_lm:-?}). Data: $DATA$([ "$HAVE_DATA" -eq 0 ] && echo " (absent)")."
+  echo "Figures only: no number here is a pass/fail criterion. Total time ${TOTAL} s (${SECTION_TIMES[*]})."
+  for s in "${ALL_SECTIONS[@]}"; do
+    case " ${SECTIONS[*]} " in *" $s "*) echo; cat "$OUT/sections/$s.md" ;; esac
+  done
+} >"$REPORT"
+echo
+echo "== done in ${TOTAL} s (${SECTION_TIMES[*]}); $WARNINGS warning(s)"
+echo "   report: $REPORT"
+exit 0

@@ -1,0 +1,292 @@
+"""Markdown tables for tools/bench.sh from the files its runs leave behind.
+
+Each subcommand reads a tab-separated list of runs (written by bench.sh; one run per line,
+columns described below) and prints a Markdown table on stdout. A missing or unreadable
+input file gives "n/a" in its cells, never an exception, so one failed run does not hide
+the others.
+
+  ate ROWS        label, data, settings, ate.json[, stats.json]
+  window ROWS     max_landmarks, ate.json (0027), stats.json (0027), stats.json (0034)
+  timing ROWS     label, stats.json (vislam-run --timing --stats-json)
+  callgrind DIR   per-call costs from the dumps of callgrind --dump-after=vl_update
+  daemon ROWS     label, vislamd stderr, vislam-replay --summary-json
+"""
+
+import argparse
+import glob
+import json
+import math
+import os
+import re
+import sys
+
+
+def _load_json(path):
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def _rows(path):
+    rows = []
+    with open(path) as f:
+        for line in f:
+            line = line.rstrip("\n")
+            if line:
+                rows.append(line.split("\t"))
+    return rows
+
+
+def _fmt(x, digits=3):
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "n/a"
+    if isinstance(x, int):
+        return str(x)
+    return f"{x:.{digits}f}"
+
+
+def _get(d, *keys):
+    for k in keys:
+        if not isinstance(d, dict) or k not in d:
+            return None
+        d = d[k]
+    return d
+
+
+def _table(header, rows):
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def _rpe(ate, delta):
+    for r in _get(ate, "rpe") or []:
+        if r.get("delta") == delta:
+            return f"{_fmt(r.get('trans_rmse'))} / {_fmt(r.get('rot_rmse_deg'), 2)}"
+    return "n/a"
+
+
+def cmd_ate(args):
+    header = ["run", "data", "settings", "ATE RMSE (m)", "ATE max (m)",
+              "RPE 1 step: m / deg", "RPE 10 steps: m / deg",
+              "obs. used", "gated", "re-assoc. frames", "num. failures"]
+    rows = []
+    for r in _rows(args.rows):
+        label, data, settings, ate_path = r[:4]
+        ate = _load_json(ate_path)
+        stats = _load_json(r[4]) if len(r) > 4 and r[4] else None
+        c = _get(stats, "core_counters") or {}
+        rows.append([label, data, settings,
+                     _fmt(_get(ate, "ate", "rmse")), _fmt(_get(ate, "ate", "max")),
+                     _rpe(ate, 1), _rpe(ate, 10),
+                     _fmt(c.get("observations_used")), _fmt(c.get("observations_gated")),
+                     _fmt(c.get("frames_reassociated")), _fmt(c.get("numerical_failures"))])
+    print(_table(header, rows))
+
+
+def _timing(stats, fn):
+    t = _get(stats, "timing", fn) or {}
+    return [_fmt(t.get(k), 1) for k in ("median_us", "p99_us", "p999_us", "max_us")]
+
+
+def cmd_window(args):
+    header = ["max_landmarks", "ATE 0027 (m)", "vl_update 0034 median / p99 / p99.9 / max (us)",
+              "vl_propagate 0034 median (us)", "landmarks deferred / evicted 0027",
+              "landmarks deferred / evicted 0034", "obs. deferred 0027 / 0034", "window peak 0034"]
+    rows = []
+    for n, ate_path, s27_path, s34_path in _rows(args.rows):
+        ate, s27, s34 = _load_json(ate_path), _load_json(s27_path), _load_json(s34_path)
+
+        def de(s):
+            c = _get(s, "core_counters") or {}
+            return f"{_fmt(c.get('landmarks_deferred'))} / {_fmt(c.get('landmarks_evicted'))}"
+
+        rows.append([n, _fmt(_get(ate, "ate", "rmse")), " / ".join(_timing(s34, "vl_update")),
+                     _timing(s34, "vl_propagate")[0], de(s27), de(s34),
+                     f"{_fmt(_get(s27, 'core_counters', 'observations_deferred'))} / "
+                     f"{_fmt(_get(s34, 'core_counters', 'observations_deferred'))}",
+                     _fmt(_get(s34, "core_counters", "window_peak"))])
+    print(_table(header, rows))
+
+
+def cmd_timing(args):
+    header = ["run", "steps", "vl_update median", "p99", "p99.9", "max",
+              "vl_propagate median", "p99", "p99.9", "max"]
+    rows = []
+    worst = None
+    for label, path in _rows(args.rows):
+        s = _load_json(path)
+        n = _get(s, "timing", "vl_update", "count")
+        rows.append([label, _fmt(n)] + _timing(s, "vl_update") + _timing(s, "vl_propagate"))
+        for fn in ("vl_update", "vl_propagate"):
+            m = _get(s, "timing", fn, "max_us")
+            if m is not None and (worst is None or m > worst[0]):
+                worst = (m, fn, label)
+    print(_table(header, rows))
+    print()
+    print("(wall time per call, us)")
+    if worst:
+        print()
+        print(f"Worst single call over all runs: {worst[0]:.1f} us ({worst[1]}, {worst[2]}).")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"worst_us": worst[0] if worst else None}, f)
+
+
+# callgrind writes names once and refers to them by "(id)" afterwards, also across the files
+# of one run, so the id table is kept over all dumps.
+_NAME_RE = re.compile(r"^(c?fn)=\((\d+)\)(?: (.*))?$")
+
+
+def _parse_dump(path, names):
+    """Inclusive Ir of the calls main -> vl_update and main -> vl_propagate in one dump."""
+    cost = {"vl_update": 0, "vl_propagate": 0}
+    calls = {"vl_update": 0, "vl_propagate": 0}
+    fn = None
+    pending = None  # callee name whose cost line comes after its calls= line
+    expect_cost = False
+    with open(path) as f:
+        for line in f:
+            if expect_cost:
+                expect_cost = False
+                parts = line.split()
+                if pending and len(parts) >= 2:
+                    cost[pending] += int(parts[-1])
+                pending = None
+                continue
+            m = _NAME_RE.match(line.rstrip("\n"))
+            if m:
+                kind, ident, name = m.groups()
+                if name:
+                    names[ident] = name
+                name = names.get(ident, "?")
+                if kind == "fn":
+                    fn = name
+                    pending = None
+                else:
+                    pending = name if (fn == "main" and name in cost) else None
+                continue
+            if line.startswith("calls="):
+                if pending:
+                    calls[pending] += int(line.split("=")[1].split()[0])
+                expect_cost = True
+    return cost, calls
+
+
+def cmd_callgrind(args):
+    def part(p):
+        m = re.search(r"\.(\d+)$", p)
+        return int(m.group(1)) if m else 0
+
+    files = sorted(glob.glob(os.path.join(args.dir, "callgrind.out*")), key=part)
+    names = {}
+    per_update, per_propagate, per_pair = [], [], []
+    tot = {"vl_update": 0, "vl_propagate": 0}
+    ncalls = {"vl_update": 0, "vl_propagate": 0}
+    for p in files:
+        cost, calls = _parse_dump(p, names)
+        for k in tot:
+            tot[k] += cost[k]
+            ncalls[k] += calls[k]
+        # A dump closes at the end of each vl_update: it holds one update and the
+        # propagation(s) before it.
+        if calls["vl_update"] == 1:
+            per_update.append(cost["vl_update"])
+            per_pair.append(cost["vl_update"] + cost["vl_propagate"])
+        if calls["vl_propagate"] == 1:
+            per_propagate.append(cost["vl_propagate"])
+    steps = ncalls["vl_update"] + ncalls["vl_propagate"]
+    if not files or steps == 0:
+        print("callgrind: no usable dump in " + args.dir)
+        return 1
+
+    def mean(v):
+        return sum(v) / len(v) if v else None
+
+    def mi(x):
+        return "n/a" if x is None else f"{x / 1e6:.3f}"
+
+    header = ["", "calls", "total Ir", "mean Ir / call (M)", "max Ir / call (M)"]
+    rows = [
+        ["vl_update", ncalls["vl_update"], f"{tot['vl_update']:,}", mi(mean(per_update)),
+         mi(max(per_update) if per_update else None)],
+        ["vl_propagate", ncalls["vl_propagate"], f"{tot['vl_propagate']:,}", mi(mean(per_propagate)),
+         mi(max(per_propagate) if per_propagate else None)],
+        ["core, per step (update or propagate)", steps, f"{tot['vl_update'] + tot['vl_propagate']:,}",
+         mi((tot["vl_update"] + tot["vl_propagate"]) / steps), "n/a"],
+        ["propagate + update of one frame", len(per_pair), "", mi(mean(per_pair)),
+         mi(max(per_pair) if per_pair else None)],
+    ]
+    print(_table(header, rows))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"steps": steps, "total_ir": tot, "calls": ncalls,
+                       "max_update_ir": max(per_update) if per_update else None,
+                       "max_propagate_ir": max(per_propagate) if per_propagate else None,
+                       "dumps": len(files)}, f, indent=2)
+    return 0
+
+
+_LAT_RE = r"{}\s*:\s*n (\d+)\s+p50 (\d+)\s+p90 (\d+)\s+p99 (\d+)\s+p99\.9 (\d+)\s+max (\d+)\s+mean ([\d.]+) us"
+
+
+def _daemon_summary(path):
+    try:
+        with open(path) as f:
+            text = f.read()
+    except OSError:
+        return {}
+    d = {}
+    for key, label in (("all", "all steps"), ("propagation", "propagation"), ("update", "update")):
+        m = re.search(_LAT_RE.format(re.escape(label)), text)
+        if m:
+            d[key] = dict(zip(("n", "p50", "p90", "p99", "p999", "max", "mean"),
+                              [int(x) for x in m.groups()[:6]] + [float(m.group(7))]))
+    m = re.search(r"budget (\d+) us[^:]*: (\d+) overrun\(s\) in (\d+) steps", text)
+    if m:
+        d["budget_us"], d["overruns"], d["steps"] = (int(x) for x in m.groups())
+    m = re.search(r"heap allocations after start-up: (\d+) in the process, (\d+) in the main", text)
+    if m:
+        d["alloc_process"], d["alloc_main"] = int(m.group(1)), int(m.group(2))
+    return d
+
+
+def cmd_daemon(args):
+    header = ["log", "steps", "budget (us)", "overruns",
+              "step latency p50 / p99 / p99.9 / max (us)", "update p99 / max (us)",
+              "end-to-end p50 / p99 / max (us)", "poses back", "allocs after start-up: process / main thread"]
+    rows = []
+    for label, log, summary in _rows(args.rows):
+        d = _daemon_summary(log)
+        r = _load_json(summary) or {}
+        a, u = d.get("all", {}), d.get("update", {})
+        lat = r.get("latency_us", {})
+        rows.append([label, _fmt(d.get("steps")), _fmt(d.get("budget_us")), _fmt(d.get("overruns")),
+                     " / ".join(_fmt(a.get(k)) for k in ("p50", "p99", "p999", "max")),
+                     " / ".join(_fmt(u.get(k)) for k in ("p99", "max")),
+                     " / ".join(_fmt(lat.get(k)) for k in ("p50", "p99", "max")),
+                     f"{_fmt(r.get('frames_returned'))} of {_fmt(r.get('frames_expected'))}",
+                     f"{_fmt(d.get('alloc_process'))} / {_fmt(d.get('alloc_main'))}"])
+    print(_table(header, rows))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="bench_report", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    for name in ("ate", "window", "timing", "daemon"):
+        p = sub.add_parser(name)
+        p.add_argument("rows")
+        p.add_argument("--json")
+    p = sub.add_parser("callgrind")
+    p.add_argument("dir")
+    p.add_argument("--json")
+    args = ap.parse_args(argv)
+    return {"ate": cmd_ate, "window": cmd_window, "timing": cmd_timing, "callgrind": cmd_callgrind,
+            "daemon": cmd_daemon}[args.cmd](args) or 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
