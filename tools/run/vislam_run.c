@@ -25,8 +25,8 @@
 #define EXIT_USAGE 2
 
 /* Statuses run from VL_ERR_CAPACITY (-7) to VL_FRAME_TRUNCATED (1). */
-#define STATUS_MIN (-7)
-#define STATUS_MAX 1
+#define STATUS_MIN ((int)VL_STATUS_MIN)
+#define STATUS_MAX ((int)VL_STATUS_MAX)
 #define STATUS_SLOTS (STATUS_MAX - STATUS_MIN + 1)
 
 /* Core log lines printed per level before rate limiting kicks in, then one in this many. */
@@ -110,6 +110,8 @@ static const char *status_name(int status)
         return "VL_ERR_NOT_POSITIVE_DEFINITE";
     case VL_ERR_CAPACITY:
         return "VL_ERR_CAPACITY";
+    case VL_ERR_MISALIGNED:
+        return "VL_ERR_MISALIGNED";
     }
     return "VL_STATUS_UNKNOWN";
 }
@@ -118,7 +120,7 @@ static void count_status(uint64_t *slots, vl_status_t status)
 {
     int s = (int)status;
     if (s < STATUS_MIN || s > STATUS_MAX) {
-        s = STATUS_MIN; /* cannot happen with this core; keep the count rather than drop it */
+        s = STATUS_MIN; /* an unknown status: keep the count rather than drop it */
     }
     slots[s - STATUS_MIN]++;
 }

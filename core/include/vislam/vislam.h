@@ -76,6 +76,10 @@ typedef enum {
                                            copies need aligned_alloc; static ones are aligned). */
 } vl_status_t;
 
+/** Lowest and highest vl_status_t values, for tables indexed by status. */
+#define VL_STATUS_MIN VL_ERR_MISALIGNED
+#define VL_STATUS_MAX VL_FRAME_TRUNCATED
+
 /** What the estimator does with its inputs (the seed project's three parts). */
 typedef enum {
     VL_MODE_IMU_ONLY = 0, /**< (a) Dead reckoning: prediction only. */
