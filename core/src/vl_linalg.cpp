@@ -1,8 +1,8 @@
 /*
  * The Eigen shim. Everything here works on Eigen::Map views of the caller's
  * buffers; products are written with noalias() so that Eigen creates no
- * temporaries, and the blocking of large products is pinned by
- * vl_la_configure() so its panels fit Eigen's stack allocation limit.
+ * temporaries, and large products run in bounded slabs so that Eigen's packing
+ * buffers stay under its stack allocation limit (no heap).
  */
 #include "vl_linalg.h"
 
@@ -125,9 +125,8 @@ void mirror_lower_to_upper(MatMap &P)
 
 extern "C" void vl_la_configure(void)
 {
-    /* Panels of at most 32 KiB (L1) / 96 KiB (L2, L3): below Eigen's default
-     * 128 KiB stack allocation limit, so GEMM, TRSM and rank updates never
-     * reach for the heap, and the blocking does not depend on the host CPU. */
+    /* Eigen sizes its cache blocking from the CPU it runs on; fixed sizes give
+     * the same blocking, hence the same rounding, on every host. */
     Eigen::setCpuCacheSizes(32 * 1024, 96 * 1024, 96 * 1024);
 }
 

@@ -27,9 +27,8 @@ typedef struct {
 } vl_la_workspace_t;
 
 /**
- * Fixes Eigen's cache-blocking sizes so that its matrix products keep their
- * panels on the stack (no heap, identical blocking on every machine).
- * Idempotent; vl_init calls it.
+ * Fixes Eigen's cache-blocking sizes (process-wide) so that products block the
+ * same way, and round the same way, on every host. Idempotent; vl_init calls it.
  */
 void vl_la_configure(void);
 
