@@ -15,8 +15,9 @@
  *
  * Conventions:
  * - Small matrices in this API are row-major double arrays.
- * - The pose perturbation is on the right: T = T_hat * exp(hat(xi)), with
- *   xi = [rho (m); phi (rad)], translation first.
+ * - The pose covariance this API reports is over a right (body-frame)
+ *   perturbation, T = T_hat * exp(hat(xi)) with xi = [rho (m); phi (rad)],
+ *   translation first. (Internally the filter uses invariant world-frame errors.)
  * - Pixels are rectified, u to the right, v down.
  */
 #ifndef VISLAM_VISLAM_H
@@ -129,8 +130,8 @@ typedef struct {
     double angular_offset_walk;     /**< rad/s/sqrt(s), random walk of the angular offset */
 
     double pixel_noise;             /**< px, std of each pixel coordinate */
-    double min_disparity;           /**< px, observations with smaller u_left - u_right are refused */
-    double max_depth;               /**< m, landmarks initialized farther than this are refused */
+    double min_disparity;           /**< px, no landmark starts from a smaller disparity u_left - u_right */
+    double max_depth;               /**< m, no landmark starts farther than this */
     double gate_chi2;               /**< chi-square (3 dof) gate on observations; 0 disables all outlier rejection */
     double max_broken_fraction;     /**< a frame in which more than this fraction of tracked observations
                                          fail the gate is a tracker re-association: all restart (0..1] */
