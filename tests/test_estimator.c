@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "unity.h"
+#include "vl_test_util.h"
 #include "vislam/vislam.h"
 #include "vl_linalg.h"
 #include "vl_se3.h"
@@ -11,20 +12,10 @@
 
 static vl_estimator_t est;
 
-static const double kitti_cam_T_imu[16] = {
-    -1.08863514e-03, -9.99976347e-01, 6.78718180e-03,  1.14389871e+00,  -8.51207214e-03, -6.77767115e-03,
-    -9.99940872e-01, -3.12718471e-01, 9.99963177e-01,  -1.14634293e-03, -8.50449310e-03, 7.26546045e-01,
-    0.0,             0.0,             0.0,             1.0};
-
 static void kitti_config(vl_config_t *cfg)
 {
     vl_config_default(cfg);
-    cfg->calibration.fx = 707.0912;
-    cfg->calibration.fy = 707.0912;
-    cfg->calibration.cx = 601.8873;
-    cfg->calibration.cy = 183.1104;
-    cfg->calibration.baseline = 0.5371506;
-    memcpy(cfg->calibration.cam_T_imu, kitti_cam_T_imu, sizeof(kitti_cam_T_imu));
+    vl_test_kitti_calibration(&cfg->calibration, 1);
 }
 
 /* Pixels of a world point seen from the identity pose. */

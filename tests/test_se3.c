@@ -7,6 +7,7 @@
  * moderate arguments used), group identities, and central finite differences.
  */
 #include "unity.h"
+#include "vl_test_util.h"
 #include "vislam/vislam.h"
 #include "vl_se3.h"
 
@@ -20,22 +21,9 @@ void tearDown(void) {}
 
 /* ---- helpers ------------------------------------------------------------ */
 
-static double max_abs_diff(const double *a, const double *b, int n)
-{
-    double m = 0.0;
-    int i;
-    for (i = 0; i < n; ++i) {
-        const double d = fabs(a[i] - b[i]);
-        if (d > m || d != d) {
-            m = d;
-        }
-    }
-    return m;
-}
-
 static void assert_close(const double *a, const double *b, int n, double tol)
 {
-    TEST_ASSERT_DOUBLE_WITHIN(tol, 0.0, max_abs_diff(a, b, n));
+    TEST_ASSERT_DOUBLE_WITHIN(tol, 0.0, vl_test_max_abs_diff(a, b, n));
 }
 
 static void identity(double *M, int n)

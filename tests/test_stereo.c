@@ -6,6 +6,7 @@
  * cam_T_imu = identity, which the model functions do not use anyway.
  */
 #include "unity.h"
+#include "vl_test_util.h"
 #include "vl_se3.h"
 #include "vl_stereo.h"
 
@@ -21,29 +22,10 @@ static const double k_points[][3] = {{0.0, 0.0, 5.0},  {1.2, -0.8, 3.0}, {-4.0, 
 
 void setUp(void)
 {
-    memset(&cal, 0, sizeof(cal));
-    cal.fx = 707.0912;
-    cal.fy = 707.0912;
-    cal.cx = 601.8873;
-    cal.cy = 183.1104;
-    cal.baseline = 0.5371506;
-    cal.cam_T_imu[0] = cal.cam_T_imu[5] = cal.cam_T_imu[10] = cal.cam_T_imu[15] = 1.0;
+    vl_test_kitti_calibration(&cal, 0);
 }
 
 void tearDown(void) {}
-
-static double max_abs_diff(const double *a, const double *b, int n)
-{
-    double m = 0.0;
-    int i;
-    for (i = 0; i < n; ++i) {
-        const double d = fabs(a[i] - b[i]);
-        if (d > m || d != d) {
-            m = d;
-        }
-    }
-    return m;
-}
 
 static double max_abs(const double *a, int n)
 {
@@ -59,7 +41,7 @@ static double max_abs(const double *a, int n)
 
 static void assert_close(const double *a, const double *b, int n, double tol)
 {
-    TEST_ASSERT_DOUBLE_WITHIN(tol, 0.0, max_abs_diff(a, b, n));
+    TEST_ASSERT_DOUBLE_WITHIN(tol, 0.0, vl_test_max_abs_diff(a, b, n));
 }
 
 void test_stereo_project_known_values(void)
@@ -169,7 +151,7 @@ void test_stereo_triangulate_round_trip(void)
         double y[3], c[3], y2[3];
         vl_stereo_project(&cal, k_points[k], y, NULL);
         vl_stereo_triangulate(&cal, y, c, NULL);
-        TEST_ASSERT_DOUBLE_WITHIN(1e-12 * k_points[k][2] * k_points[k][2], 0.0, max_abs_diff(c, k_points[k], 3));
+        TEST_ASSERT_DOUBLE_WITHIN(1e-12 * k_points[k][2] * k_points[k][2], 0.0, vl_test_max_abs_diff(c, k_points[k], 3));
         vl_stereo_project(&cal, c, y2, NULL);
         assert_close(y2, y, 3, 1e-9);
     }
@@ -208,7 +190,7 @@ void test_stereo_triangulate_jacobian_finite_difference(void)
             }
         }
         /* Entries reach ~20 m/px at 80 m; the O(h^2) error scales with z^3. */
-        TEST_ASSERT_DOUBLE_WITHIN(1e-7 * (1.0 + max_abs(J, 9)), 0.0, max_abs_diff(J, Jfd, 9));
+        TEST_ASSERT_DOUBLE_WITHIN(1e-7 * (1.0 + max_abs(J, 9)), 0.0, vl_test_max_abs_diff(J, Jfd, 9));
     }
 }
 
