@@ -59,7 +59,12 @@ extern "C" {
 /** Rows of a compressed stereo observation: u_left, mean v, u_right. */
 #define VL_OBS_DIM 3
 
-/** Status of every core call. Negative values are refusals; the estimator is unchanged. */
+/**
+ * Status of every core call. Negative values are refusals: the input was not
+ * used and the estimator is unchanged, except VL_ERR_NOT_POSITIVE_DEFINITE,
+ * where only the joint update was refused (the frame's prediction and window
+ * bookkeeping still happened).
+ */
 typedef enum {
     VL_OK = 0,                        /**< Done. */
     VL_FRAME_TRUNCATED = 1,           /**< Frame had more than VL_MAX_FRAME_FEATURES observations;
