@@ -77,6 +77,16 @@ void test_init_rejects_null_and_missing_calibration(void)
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
 }
 
+void test_init_rejects_misaligned_estimator(void)
+{
+    static unsigned char storage[sizeof(vl_estimator_t) + VL_ESTIMATOR_ALIGN] VL_ALIGNED(VL_ESTIMATOR_ALIGN);
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    vl_estimator_t *shifted = (vl_estimator_t *)(void *)(storage + 8);
+    TEST_ASSERT_EQUAL_INT(VL_ERR_MISALIGNED, vl_init(shifted, &cfg));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init((vl_estimator_t *)(void *)storage, &cfg));
+}
+
 void test_config_check_rejects_out_of_range_values(void)
 {
     vl_config_t cfg;
@@ -586,6 +596,7 @@ int main(void)
 {
     UNITY_BEGIN();
     RUN_TEST(test_init_rejects_null_and_missing_calibration);
+    RUN_TEST(test_init_rejects_misaligned_estimator);
     RUN_TEST(test_config_check_rejects_out_of_range_values);
     RUN_TEST(test_propagate_rejects_nan_and_counts_it);
     RUN_TEST(test_propagate_rejects_non_increasing_time);
