@@ -14,6 +14,8 @@
 #      at the last frame whose pose was published, and a final status was published.
 #   4. heap allocations after start-up (LD_PRELOAD counter): none in the main thread; the
 #      process total (LCM's receive thread, first sight of each channel) stays bounded.
+#   5. calibration from the config file alone (no VISLAM_CALIB on the wire): the daemon estimates,
+#      and equals vislam-run with the same config.
 # Exit 77 (CTest skip) when a private network namespace or lcm-logger is unavailable.
 set -uo pipefail
 
@@ -199,6 +201,35 @@ check "final status published: its poses_out equals the poses on the wire" \
 check "final status: every input received was a step (steps = imu_in + frames_in, 0 rejected)" \
   eq "$(value "$B" status.last.steps)/$(value "$B" status.last.inputs_rejected)" \
   "$(($(value "$B" status.last.imu_in) + $(value "$B" status.last.frames_in)))/0"
+
+# ---- run C: calibration from the config file, none on the wire -------------------------------
+echo "== run C: --config with [calibration], the log's VISLAM_CALIB not played"
+cat >"$OUT/calib.ini" <<'INI'
+[calibration]
+override_log = true
+fx = 707.0912
+fy = 707.0912
+cx = 601.8873
+cy = 183.1104
+baseline = 0.5371506
+cam_T_imu = -1.08863514e-03 -9.99976347e-01 6.78718180e-03 1.14389871e+00
+            -8.51207214e-03 -6.77767115e-03 -9.99940872e-01 -3.12718471e-01
+            9.99963177e-01 -1.14634293e-03 -8.50449310e-03 7.26546045e-01
+            0 0 0 1
+INI
+"$BIN/vislam-run" "$LOG" --config "$OUT/calib.ini" --trajectory "$OUT/c.offline.tum" --quiet
+check "vislam-run with the config file's calibration succeeds" eq $? 0
+"$BIN/vislamd" --lcm-url "$URL" --config "$OUT/calib.ini" --trajectory "$OUT/c.tum" --quiet 2>"$OUT/c.daemon.err" &
+DAEMON=$!
+PIDS+=("$DAEMON")
+"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --channels VISLAM_IMU,VISLAM_FEATURES --lockstep --speed 8 \
+  --wait-for VISLAM_STATUS --timeout-ms 5000 --quiet 2>"$OUT/c.replay.err"
+check "replay C without a calibration message: every frame's pose came back" eq $? 0
+kill -TERM "$DAEMON"
+wait_exit "$DAEMON" 10
+check "daemon C exits 0 on SIGTERM" eq "$WAIT_RC" 0
+check "daemon C trajectory has every frame" eq "$(wc -l <"$OUT/c.tum")" "$FRAMES"
+check "daemon C trajectory byte-identical to vislam-run's with the same config" cmp "$OUT/c.tum" "$OUT/c.offline.tum"
 
 echo "== $((SECONDS - START)) s, $FAILS failure(s)"
 [ "$FAILS" -eq 0 ]
