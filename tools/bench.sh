@@ -23,15 +23,17 @@ SELF="tools/bench.sh"
 LCM_URL='udpm://239.255.76.67:7667?ttl=0'
 
 # ---- inside the private network namespace: one vislamd + vislam-replay run -------------------
-# bench.sh --daemon-inner BIN LOG PREFIX ALLOC_SO SPEED  (only via unshare, from section_daemon)
+# bench.sh --daemon-inner BIN LOG PREFIX ALLOC_SO SPEED [VISLAMD OPTION...]
+# (only via unshare, from section_daemon)
 daemon_inner() {
   local bin=$1 log=$2 prefix=$3 alloc=$4 speed=$5 cmds daemon replay_rc daemon_rc
+  shift 5
   local preload=() daemon_cmd replay_cmd
   cmds="${VL_BENCH_CMDS:-/dev/null}"
   ip link set lo up multicast on || return 3
   ip route add 224.0.0.0/4 dev lo || return 3
   [ -n "$alloc" ] && preload=(env LD_PRELOAD="$alloc")
-  daemon_cmd=("${preload[@]}" "$bin/vislamd" --lcm-url "$LCM_URL" --trajectory "$prefix.tum")
+  daemon_cmd=("${preload[@]}" "$bin/vislamd" --lcm-url "$LCM_URL" --trajectory "$prefix.tum" "$@")
   replay_cmd=("$bin/vislam-replay" "$log" --lcm-url "$LCM_URL" --lockstep --speed "$speed"
     --wait-for VISLAM_STATUS --timeout-ms 5000 --summary-json "$prefix.replay.json")
   {
@@ -483,23 +485,30 @@ section_daemon() {
   elif [ "$HAVE_DATA" -eq 1 ]; then
     local l34
     l34=$(logfor 0034) && runs+=("0034|$l34")
+    # The same with the daemon as a robot would run it: SCHED_FIFO, pinned to the second core.
+    if [ "$(id -u)" -eq 0 ] && [ -n "$l34" ]; then
+      runs+=("0034 rt|$l34|--rt-priority 80 --cpu 1")
+    fi
   else
     say "SKIPPED (0034): the seed datasets are not in $DATA."
   fi
-  local r name log
+  local r name log extra file
   for r in "${runs[@]}"; do
-    IFS='|' read -r name log <<<"$r"
+    IFS='|' read -r name log extra <<<"$r"
+    file=${name// /_}
     note "replaying $name at 1x into vislamd ($(wc -c <"$log") bytes)"
-    rm -f "$d/$name.replay.json" "$d/$name.vislamd.log"
+    rm -f "$d/$file.replay.json" "$d/$file.vislamd.log"
     echo "# $name" >>"$SEC_CMDS"
-    if ! VL_BENCH_CMDS="$SEC_CMDS" unshare --net bash "$SELF" --daemon-inner "$BIN" "$log" "$d/$name" "$alloc" 1 \
-      >"$d/$name.inner.log" 2>&1; then
-      warn "daemon run on $name failed: $(tail -n 1 "$d/$name.inner.log") (see $d/$name.*.log)"
+    # shellcheck disable=SC2086 # $extra holds separate vislamd options
+    if ! VL_BENCH_CMDS="$SEC_CMDS" unshare --net bash "$SELF" --daemon-inner "$BIN" "$log" "$d/$file" "$alloc" 1 $extra \
+      >"$d/$file.inner.log" 2>&1; then
+      warn "daemon run on $name failed: $(tail -n 1 "$d/$file.inner.log") (see $d/$file.*.log)"
     fi
-    printf '%s\t%s\t%s\n' "$name" "$d/$name.vislamd.log" "$d/$name.replay.json" >>"$rows"
+    printf '%s\t%s\t%s\n' "$name" "$d/$file.vislamd.log" "$d/$file.replay.json" >>"$rows"
   done
   say "LCM $LCM_URL on the loopback of a private network namespace; vislamd at"
-  say "normal priority with its default options (mlockall), LD_PRELOAD allocation counter. Step latency:"
+  say "normal priority with its default options (mlockall), or (rows 'rt') with --rt-priority 80 --cpu 1;"
+  say "LD_PRELOAD allocation counter. Step latency:"
   say "vislamd's, decode to publish; end-to-end: vislam-replay's, frame published to its pose received."
   say "Budget: the sensor period."
   say ""
