@@ -56,6 +56,15 @@ static vl_imu_sample_t imu_at(int64_t utime, double vx, double wz)
     return s;
 }
 
+/* vl_init, then the first IMU sample (at rest) at utime, which sets the clock. */
+static vl_imu_sample_t start_at(const vl_config_t *cfg, int64_t utime)
+{
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, cfg));
+    vl_imu_sample_t s = imu_at(utime, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    return s;
+}
+
 void setUp(void)
 {
 }
@@ -158,9 +167,7 @@ void test_update_rejects_frame_out_of_time_order(void)
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
     kitti_config(&cfg);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
-    vl_imu_sample_t s = imu_at(1000000, 0.0, 0.0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, 10, 0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
     TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_ORDER, vl_update(&est, &frame));
@@ -175,9 +182,7 @@ void test_update_truncates_oversized_frame_and_counts_it(void)
     vl_config_t cfg;
     kitti_config(&cfg);
     cfg.min_track_length = 1;
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
-    vl_imu_sample_t s = imu_at(1000000, 0.0, 0.0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, VL_MAX_FRAME_FEATURES, 0);
     frame.count = VL_MAX_FRAME_FEATURES + 17u;
     TEST_ASSERT_EQUAL_INT(VL_FRAME_TRUNCATED, vl_update(&est, &frame));
@@ -193,9 +198,7 @@ void test_update_counts_invalid_observations(void)
     vl_config_t cfg;
     kitti_config(&cfg);
     cfg.min_track_length = 1;
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
-    vl_imu_sample_t s = imu_at(1000000, 0.0, 0.0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, 6, 0);
     frame.obs[0].u_left = NAN;            /* non-finite */
     frame.obs[1].id = -3;                 /* negative id */
@@ -465,9 +468,7 @@ void test_flush_hands_every_landmark_to_the_sink_with_its_marginal(void)
     cfg.min_track_length = 1;
     cfg.landmark_sink = collect;
     cfg.landmark_sink_user = &sink;
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
-    vl_imu_sample_t s = imu_at(1000000, 0.0, 0.0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, 12, 100);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
     size_t count = 0;
@@ -503,9 +504,7 @@ void test_window_never_exceeds_its_limit_and_keeps_observed_landmarks(void)
     cfg.max_landmarks = 5;
     cfg.landmark_sink = collect;
     cfg.landmark_sink_user = &sink;
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
-    vl_imu_sample_t s = imu_at(0, 0.0, 0.0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    vl_imu_sample_t s = start_at(&cfg, 0);
     for (int k = 0; k < 5; ++k) {
         s.utime = (int64_t)k * 100000;
         if (k > 0) {
@@ -537,9 +536,7 @@ void test_window_admits_the_largest_disparity_first(void)
     kitti_config(&cfg);
     cfg.min_track_length = 1;
     cfg.max_landmarks = 1;
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
-    vl_imu_sample_t s = imu_at(0, 0.0, 0.0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    start_at(&cfg, 0);
     frame.utime = 0;
     frame.count = 3;
     const double far[3] = {40.0, 1.0, 0.0}, near[3] = {6.0, 1.0, 0.0}, mid[3] = {15.0, 1.0, 0.0};
@@ -559,9 +556,7 @@ void test_get_landmarks_reports_capacity_shortfall(void)
     vl_config_t cfg;
     kitti_config(&cfg);
     cfg.min_track_length = 1;
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
-    vl_imu_sample_t s = imu_at(0, 0.0, 0.0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    start_at(&cfg, 0);
     make_frame(&cfg, &frame, 0, 4, 0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
     vl_landmark_t out[2];
@@ -577,9 +572,7 @@ void test_update_uses_at_most_max_update_observations(void)
     kitti_config(&cfg);
     cfg.min_track_length = 1;
     cfg.max_update_observations = 5;
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
-    vl_imu_sample_t s = imu_at(0, 0.0, 0.0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    vl_imu_sample_t s = start_at(&cfg, 0);
     make_frame(&cfg, &frame, 0, 12, 0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
     s.utime = 100000;

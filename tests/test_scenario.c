@@ -77,18 +77,18 @@ static uint64_t mix(uint64_t h, const void *data, size_t n)
     return h;
 }
 
-static void sim_config(vl_sim_config_t *sc, uint64_t noise_seed, uint32_t steps)
+/*
+ * A simulated drive and an estimator told the simulator's true noise (pixel
+ * noise px; the rest the simulator's defaults, like the seed data's).
+ */
+static void scenario(uint64_t noise_seed, uint32_t steps, double px, vl_sim_config_t *sc, vl_config_t *cfg)
 {
     vl_sim_config_default(sc);
     sc->num_steps = steps;
     sc->noise_seed = noise_seed;
-}
-
-static void estimator_config(const vl_sim_t *s, const vl_sim_config_t *sc, vl_config_t *cfg)
-{
+    sc->pixel_noise = px;
     vl_config_default(cfg);
-    vl_sim_calibration(s, &cfg->calibration);
-    /* The filter is told the simulator's true noise. */
+    cfg->calibration = sc->calibration;
     cfg->pixel_noise = sc->pixel_noise;
     cfg->linear_velocity_noise = sc->linear_noise;
     cfg->angular_velocity_noise = sc->angular_noise;
@@ -148,13 +148,10 @@ void test_slam_is_consistent_average_nees_within_chi_square_bounds(void)
     for (uint64_t r = 0; r < NEES_RUNS; ++r) {
         vl_sim_config_t sc;
         vl_config_t cfg;
-        sim_config(&sc, 100 + r, NEES_STEPS);
         /* The seed data's pixel error (0.26 px median against ground truth). At
          * 1 px, points under ~10 px of disparity have strongly skewed depth and the
          * filter turns optimistic: see the README's limits. */
-        sc.pixel_noise = 0.3;
-        TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, &sc));
-        estimator_config(&sim, &sc, &cfg);
+        scenario(100 + r, NEES_STEPS, 0.3, &sc, &cfg);
         /* No outliers in the simulation: plain EKF, so nothing but the model is tested. */
         cfg.gate_chi2 = 0.0;
         run(&sc, &cfg, &res);
@@ -187,9 +184,7 @@ void test_slam_beats_dead_reckoning(void)
     static run_result_t slam, dr;
     vl_sim_config_t sc;
     vl_config_t cfg;
-    sim_config(&sc, 7, 300);
-    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, &sc));
-    estimator_config(&sim, &sc, &cfg);
+    scenario(7, 300, 1.0, &sc, &cfg);
     run(&sc, &cfg, &slam);
     cfg.mode = VL_MODE_IMU_ONLY;
     run(&sc, &cfg, &dr);
@@ -204,9 +199,7 @@ void test_window_never_exceeds_capacity_on_a_drive(void)
     static run_result_t res;
     vl_sim_config_t sc;
     vl_config_t cfg;
-    sim_config(&sc, 3, 120);
-    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, &sc));
-    estimator_config(&sim, &sc, &cfg);
+    scenario(3, 120, 1.0, &sc, &cfg);
     cfg.max_landmarks = 24; /* far fewer than the ~90 tracks per frame */
     run(&sc, &cfg, &res);
     TEST_ASSERT_EQUAL_UINT32(24, res.window_max);
@@ -219,9 +212,7 @@ void test_replay_is_bit_identical(void)
     static run_result_t a, b;
     vl_sim_config_t sc;
     vl_config_t cfg;
-    sim_config(&sc, 11, 100);
-    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, &sc));
-    estimator_config(&sim, &sc, &cfg);
+    scenario(11, 100, 1.0, &sc, &cfg);
     run(&sc, &cfg, &a);
     run(&sc, &cfg, &b);
     TEST_ASSERT_EQUAL_HEX64(a.checksum, b.checksum);

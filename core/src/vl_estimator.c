@@ -516,15 +516,15 @@ static void ransac_rows(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
         if (vl_la_single_correction(e->P, LD, n, &rows[pick], e->work_PHt, e->work_dx) != 0) {
             continue;
         }
+        uint8_t *flags = e->work_support;
         uint32_t support = 0;
         for (uint32_t i = 0; i < k; ++i) {
-            support += residual_after(&rows[i], e->work_dx) <= thr2;
+            flags[i] = residual_after(&rows[i], e->work_dx) <= thr2;
+            support += flags[i];
         }
         if (support > best_support) {
             best_support = support;
-            for (uint32_t i = 0; i < k; ++i) {
-                inlier[i] = residual_after(&rows[i], e->work_dx) <= thr2;
-            }
+            memcpy(inlier, flags, k);
         }
     }
 }

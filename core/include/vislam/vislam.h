@@ -305,6 +305,7 @@ typedef struct {
     uint32_t work_frame_obs[VL_MAX_LANDMARKS];
     uint8_t work_seen[VL_MAX_LANDMARKS];
     uint8_t work_inlier[VL_MAX_LANDMARKS];
+    uint8_t work_support[VL_MAX_LANDMARKS];
     uint32_t work_broken[VL_MAX_LANDMARKS];
     uint32_t num_broken;
 } vl_estimator_t;
