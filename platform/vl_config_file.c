@@ -40,6 +40,7 @@ static const key_def_t k_keys[] = {
     {"estimator", "preset", KEY_PRESET, 0, 0, 0, 0, 0},
     {"estimator", "mode", KEY_MODE, CFG_OFF(mode), 0, 0, 0, 0},
     {"estimator", "estimate_input_offsets", KEY_BOOL, CFG_OFF(estimate_input_offsets), 0, 0, 0, 0},
+    {"estimator", "adaptive_noise", KEY_BOOL, CFG_OFF(adaptive_noise), 0, 0, 0, 0},
     {"estimator", "max_propagation_dt", KEY_DOUBLE, CFG_OFF(max_propagation_dt), 0.0, DBL_MAX, 1, 0},
     {"estimator", "max_update_observations", KEY_UINT32, CFG_OFF(max_update_observations), 0.0, (double)UINT32_MAX, 0, 0},
 
@@ -670,6 +671,7 @@ int vl_config_write_ini(FILE *f, const vl_config_t *cfg, int with_calibration)
     fprintf(f, "[estimator]\n");
     fprintf(f, "mode = %s\n", vl_mode_name(cfg->mode));
     fprintf(f, "estimate_input_offsets = %s\n", cfg->estimate_input_offsets ? "true" : "false");
+    fprintf(f, "adaptive_noise = %s\n", cfg->adaptive_noise ? "true" : "false");
     fprintf(f, "max_propagation_dt = %.17g\n", cfg->max_propagation_dt);
     fprintf(f, "max_update_observations = %u\n", (unsigned)cfg->max_update_observations);
     fprintf(f, "\n[noise]\n");

@@ -35,6 +35,7 @@ void vl_config_default(vl_config_t *cfg)
     /* 64 observations (192 rows) keep an update at a full window of 128 under
      * 2 ms at p99.9 on 0034 here, for a few decimetres of ATE on 0027 (README). */
     cfg->max_update_observations = 64;
+    cfg->adaptive_noise = 1;
 
     cfg->max_landmarks = VL_MAX_LANDMARKS;
     cfg->min_track_length = 2;
@@ -60,6 +61,7 @@ void vl_config_preset_seed(vl_config_t *cfg)
     cfg->ransac_hypotheses = 0;
     cfg->max_broken_fraction = 1.0;
     cfg->max_update_observations = 0;
+    cfg->adaptive_noise = 0;
     cfg->min_track_length = 1;
     cfg->min_disparity = 1e-6;
     cfg->max_depth = 1e9;

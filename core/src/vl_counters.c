@@ -23,6 +23,7 @@ size_t vl_counters_list(const vl_counters_t *c, vl_counter_entry_t out[VL_NUM_CO
     VL_COUNTER(landmarks_deferred);
     VL_COUNTER(tracks_inconsistent);
     VL_COUNTER(frames_reassociated);
+    VL_COUNTER(frames_repeated);
     VL_COUNTER(tracks_broken);
     VL_COUNTER(landmarks_marginalized);
     VL_COUNTER(landmarks_evicted);

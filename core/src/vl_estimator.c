@@ -30,6 +30,14 @@
 #define IDX_OFFSET_ANG 9
 /* Fewer tracked observations than this never count as a re-association. */
 #define VL_MIN_ROWS_FOR_REASSOCIATION 8
+/* Adapted noise stays within this factor (of the std) of its configured value, either way. */
+#define VL_NOISE_ADAPT_RANGE 100.0
+/* Rows of evidence the pixel noise estimate averages over (its forgetting scale). */
+#define VL_PIXEL_NOISE_MEMORY 1000.0
+/* Step of the velocity noise in log-variance per frame, at a frame that fully informs the pose. */
+#define VL_VELOCITY_NOISE_GAIN 0.05
+/* Variance factor applied when frame after frame contradicts the prior. */
+#define VL_NOISE_WIDEN_ON_CONTRADICTION 4.0
 
 typedef char vl_assert_capacity_positive[(VL_MAX_LANDMARKS >= 1) ? 1 : -1];
 typedef char vl_assert_capacity_bounded[(VL_MAX_LANDMARKS <= 4096) ? 1 : -1];
@@ -170,7 +178,7 @@ static void triangulate_world(const vl_estimator_t *e, const double y[3], double
     }
     vl_matmul_bt(e->R, Rc, RRc, 3, 3, 3);
     vl_matmul(RRc, dc_dy, J, 3, 3, 3);
-    const double s2 = e->cfg.pixel_noise * e->cfg.pixel_noise;
+    const double s2 = e->pixel_var;
     const double noise[9] = {s2, 0, 0, 0, 0.5 * s2, 0, 0, 0, s2};
     vl_matmul(J, noise, tmp, 3, 3, 3);
     vl_matmul_bt(tmp, J, C, 3, 3, 3);
@@ -241,8 +249,8 @@ static void propagate_to(vl_estimator_t *e, int64_t utime)
             g[2] = l[0] * psi[1] - l[1] * psi[0];
         }
     }
-    const double sv2 = e->cfg.linear_velocity_noise * e->cfg.linear_velocity_noise;
-    const double sw2 = e->cfg.angular_velocity_noise * e->cfg.angular_velocity_noise;
+    const double sv2 = e->linear_velocity_var;
+    const double sw2 = e->angular_velocity_var;
     const double noise_var[6] = {sv2, sv2, sv2, sw2, sw2, sw2};
     const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
     const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
@@ -348,7 +356,7 @@ static void admit_landmark(vl_estimator_t *e, int32_t id, const double y[3])
     }
     vl_matmul_bt(e->R, Rc, RRc, 3, 3, 3); /* R Rc^T */
     vl_matmul(RRc, dc_dy, J_obs, 3, 3, 3);
-    const double s2 = e->cfg.pixel_noise * e->cfg.pixel_noise;
+    const double s2 = e->pixel_var;
     const double noise[3] = {s2, 0.5 * s2, s2};
     vl_la_append_landmark(e->P, LD, (int)vl_state_dim(e), J_pose, J_obs, noise);
 
@@ -431,7 +439,7 @@ static int make_row(const vl_estimator_t *e, uint32_t slot, const vl_stereo_obs_
         }
     }
     vl_stereo_compress(o, y);
-    const double s2 = e->cfg.pixel_noise * e->cfg.pixel_noise;
+    const double s2 = e->pixel_var;
     for (int r = 0; r < 3; ++r) {
         row->residual[r] = y[r] - y_pred[r];
     }
@@ -585,6 +593,117 @@ static vl_status_t apply_update(vl_estimator_t *e, const vl_la_obs_t *rows, uint
     return VL_OK;
 }
 
+/* ---------------------------------------------------------------- noise adaptation */
+
+/* Keeps a variance within the adaptation's bounds around its configured value. */
+static double clamp_var(double var, double configured_std)
+{
+    const double f = VL_NOISE_ADAPT_RANGE;
+    const double lo = configured_std * configured_std / (f * f), hi = configured_std * configured_std * f * f;
+    return var < lo ? lo : (var > hi ? hi : var);
+}
+
+/* The k-th smallest of v[0..n) (0-based); reorders v. Quickselect with a middle pivot: deterministic. */
+static double select_kth(double *v, uint32_t n, uint32_t k)
+{
+    uint32_t lo = 0, hi = n - 1u;
+    while (lo < hi) {
+        const double pivot = v[lo + (hi - lo) / 2u];
+        uint32_t i = lo, j = hi;
+        while (i <= j) {
+            while (v[i] < pivot) {
+                ++i;
+            }
+            while (v[j] > pivot) {
+                --j;
+            }
+            if (i <= j) {
+                const double t = v[i];
+                v[i] = v[j];
+                v[j] = t;
+                ++i;
+                if (j == 0u) {
+                    break;
+                }
+                --j;
+            }
+        }
+        if (k <= j) {
+            hi = j;
+        } else if (k >= i) {
+            lo = i;
+        } else {
+            return v[k];
+        }
+    }
+    return v[k];
+}
+
+/*
+ * Residual-based covariance matching for the pixel noise, made robust. After the
+ * update, an observation's post-fit residual e has E[e e^T] = R - H P+ H^T, so
+ * each row gives (e_r^2 + (H P+ H^T)_rr) / w_r as a sample of the pixel variance
+ * (w_r the row's share: 1, 1/2, 1). The median over every row of the frame,
+ * outliers included, scaled to a variance (the median of chi-square(1) is 0.455),
+ * is blind to a minority of outliers and is not truncated by the inlier
+ * selection. It enters an average that forgets faster the more rows a frame has.
+ */
+static void adapt_pixel_noise(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
+{
+    static const double share[3] = {1.0, 0.5, 1.0};
+    double samples[VL_OBS_DIM * VL_MAX_LANDMARKS];
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < k; ++i) {
+        double S[9];
+        vl_la_obs_covariance(e->P, LD, &rows[i], S); /* H P+ H^T + R */
+        for (int r = 0; r < 3; ++r) {
+            double res = rows[i].residual[r];
+            for (int j = 0; j < 6; ++j) {
+                res -= rows[i].H_pose[6 * r + j] * e->work_dx[j];
+            }
+            for (int j = 0; j < 3; ++j) {
+                res -= rows[i].H_landmark[3 * r + j] * e->work_dx[rows[i].landmark_col + j];
+            }
+            samples[n++] = (res * res + S[4 * r] - rows[i].noise_var[r]) / share[r];
+        }
+    }
+    if (n < 3u) {
+        return;
+    }
+    const double sample = select_kth(samples, n, n / 2u) / 0.455;
+    const double w = 1.0 - exp(-(double)k / VL_PIXEL_NOISE_MEMORY);
+    e->pixel_var = clamp_var((1.0 - w) * e->pixel_var + w * sample, e->cfg.pixel_noise);
+}
+
+/*
+ * Covariance matching for the velocity noise on the pose correction: for a
+ * consistent filter E[dx dx^T] = P- - P+ on the pose block. More correction than
+ * the filter expected means its prediction was too confident (noise too small),
+ * less means too timid. Each variance moves by a fraction of log(ratio), weighted
+ * by how much the frame informed that block, so weak frames barely move it.
+ */
+static void adapt_velocity_noise(vl_estimator_t *e, const double prior_diag[6])
+{
+    const double *dx = e->work_dx;
+    double *var[2] = {&e->linear_velocity_var, &e->angular_velocity_var};
+    const double configured[2] = {e->cfg.linear_velocity_noise, e->cfg.angular_velocity_noise};
+    for (int b = 0; b < 2; ++b) {
+        double expected = 0.0, seen = 0.0, prior = 0.0;
+        for (int i = 3 * b; i < 3 * b + 3; ++i) {
+            prior += prior_diag[i];
+            expected += prior_diag[i] - *P_at(e, (uint32_t)i, (uint32_t)i);
+            seen += dx[i] * dx[i];
+        }
+        if (!(expected > 1e-12 * prior) || !(prior > 0.0)) {
+            continue;
+        }
+        double ratio = seen / expected;
+        ratio = ratio < 0.1 ? 0.1 : (ratio > 10.0 ? 10.0 : ratio);
+        const double gain = VL_VELOCITY_NOISE_GAIN * (expected / prior);
+        *var[b] = clamp_var(*var[b] * exp(gain * log(ratio)), configured[b]);
+    }
+}
+
 /*
  * Re-linearizes the rejected rows (rows[first .. first + count)) at the corrected
  * state, keeps those within gate_chi2 of their posterior innovation covariance,
@@ -650,6 +769,9 @@ vl_status_t vl_init(vl_estimator_t *e, const vl_config_t *cfg)
             *P_at(e, IDX_OFFSET_ANG + i, IDX_OFFSET_ANG + i) = cfg->angular_offset_prior * cfg->angular_offset_prior;
         }
     }
+    e->linear_velocity_var = cfg->linear_velocity_noise * cfg->linear_velocity_noise;
+    e->angular_velocity_var = cfg->angular_velocity_noise * cfg->angular_velocity_noise;
+    e->pixel_var = cfg->pixel_noise * cfg->pixel_noise;
     e->initialized = 1;
     return VL_OK;
 }
@@ -711,9 +833,9 @@ static int track_consistent(const vl_estimator_t *e, const vl_pending_track_t *t
     if (project_world_point(e, t->point, y_pred, Hp, Hx) != 0) {
         return 0;
     }
-    const double sv2 = e->cfg.linear_velocity_noise * e->cfg.linear_velocity_noise * dt * dt;
-    const double sw2 = e->cfg.angular_velocity_noise * e->cfg.angular_velocity_noise * dt * dt;
-    const double s2 = e->cfg.pixel_noise * e->cfg.pixel_noise;
+    const double sv2 = e->linear_velocity_var * dt * dt;
+    const double sw2 = e->angular_velocity_var * dt * dt;
+    const double s2 = e->pixel_var;
     double S[9], tmp[9], HQ[18];
     vl_matmul(Hx, t->covariance, tmp, 3, 3, 3);
     vl_matmul_bt(tmp, Hx, S, 3, 3, 3);
@@ -863,8 +985,17 @@ static vl_status_t update_with_rows(vl_estimator_t *e, const vl_stereo_frame_t *
         e->counters.frames_reassociated++;
         e->counters.observations_gated += k;
         break_all_rows(e, k);
+        /* A tracker re-associates on single frames; frame after frame contradicting
+         * the prior means the prior is overconfident: widen the motion noise. */
+        if (e->cfg.adaptive_noise && ++e->reassociated_run >= 2) {
+            const double f = VL_NOISE_WIDEN_ON_CONTRADICTION;
+            e->linear_velocity_var = clamp_var(e->linear_velocity_var * f, e->cfg.linear_velocity_noise);
+            e->angular_velocity_var = clamp_var(e->angular_velocity_var * f, e->cfg.angular_velocity_noise);
+            e->pixel_var = clamp_var(e->pixel_var * f, e->cfg.pixel_noise);
+        }
         return VL_OK;
     }
+    e->reassociated_run = 0;
     if (e->cfg.ransac_hypotheses > 0 && k >= 2) {
         ransac_rows(e, rows, k);
     }
@@ -880,7 +1011,15 @@ static vl_status_t update_with_rows(vl_estimator_t *e, const vl_stereo_frame_t *
         e->counters.observations_deferred += inliers - cap;
         inliers = cap;
     }
+    double prior_diag[6];
+    for (uint32_t i = 0; i < 6; ++i) {
+        prior_diag[i] = *P_at(e, i, i);
+    }
     vl_status_t st = apply_update(e, rows, inliers);
+    if (st == VL_OK && inliers > 0 && e->cfg.adaptive_noise) {
+        adapt_pixel_noise(e, rows, k);
+        adapt_velocity_noise(e, prior_diag);
+    }
     if (st != VL_OK || rest == 0) {
         e->counters.observations_gated += rest;
         return st;
@@ -967,6 +1106,31 @@ static void admit_candidates(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     pending_compact(e);
 }
 
+/*
+ * A frame that repeats the previous frame's pixels exactly, for every id the two
+ * share, is the same image delivered twice: the vehicle moved on, the image did not.
+ */
+static int frame_repeats_previous(const vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count)
+{
+    uint32_t common = 0;
+    for (uint32_t i = 0; i < count; ++i) {
+        const vl_stereo_obs_t *o = &frame->obs[i];
+        for (uint32_t j = 0; j < e->num_prev_obs; ++j) {
+            const vl_stereo_obs_t *q = &e->prev_obs[j];
+            if (q->id != o->id) {
+                continue;
+            }
+            if (q->u_left != o->u_left || q->v_left != o->v_left || q->u_right != o->u_right ||
+                q->v_right != o->v_right) {
+                return 0;
+            }
+            common++;
+            break;
+        }
+    }
+    return common > 0;
+}
+
 vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
 {
     if (e == NULL || frame == NULL) {
@@ -994,6 +1158,14 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         result = VL_FRAME_TRUNCATED;
     }
 
+    /* Counted, and still used: after a repeated image the tracker's frames stay one
+     * step behind the clock, so the repeat keeps the vision's timeline coherent
+     * (skipping repeats measured worse on every density of the real drives). */
+    if (frame_repeats_previous(e, frame, count)) {
+        e->counters.frames_repeated++;
+    }
+    e->num_prev_obs = count;
+    memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
     propagate_to(e, frame->utime);
     const double frame_dt =
         (e->counters.frames_accepted > 0) ? (double)(frame->utime - e->last_frame_utime) * 1e-6 : 0.0;
@@ -1061,6 +1233,9 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
         out->linear_offset[i] = e->offset_linear[i];
         out->angular_offset[i] = e->offset_angular[i];
     }
+    out->linear_velocity_noise = sqrt(e->linear_velocity_var);
+    out->angular_velocity_noise = sqrt(e->angular_velocity_var);
+    out->pixel_noise = sqrt(e->pixel_var);
     return VL_OK;
 }
 

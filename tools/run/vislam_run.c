@@ -767,6 +767,11 @@ int main(int argc, char **argv)
             }
         }
         fprintf(stderr, "\n");
+        vl_pose_t last;
+        if (initialized && vl_get_pose(est, &last) == VL_OK) {
+            fprintf(stderr, "  noise in use: linear_velocity %.3g m/s, angular_velocity %.3g rad/s, pixel %.3g px\n",
+                    last.linear_velocity_noise, last.angular_velocity_noise, last.pixel_noise);
+        }
         for (int which = 0; which < 2; ++which) {
             const uint64_t *slots = which == 0 ? run.propagate_status : run.update_status;
             for (int s = STATUS_MIN; s <= STATUS_MAX; ++s) {

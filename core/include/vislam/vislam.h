@@ -142,6 +142,7 @@ typedef struct {
                                          fail the gate is a tracker re-association: all restart (0..1] */
     uint32_t ransac_hypotheses;     /**< 1-point RANSAC hypotheses per frame; 0 gates each observation alone */
     double ransac_threshold;        /**< px, residual a RANSAC hypothesis must leave for an observation to support it */
+    int adaptive_noise;             /**< nonzero: the noise values are priors, adapted online */
     uint32_t max_update_observations; /**< most observations one update uses (a time bound); 0: all */
 
     uint32_t max_landmarks;         /**< active window, 1..VL_MAX_LANDMARKS */
@@ -192,6 +193,9 @@ typedef struct {
     double angular_velocity[3];/**< last offset-corrected body angular velocity, rad/s */
     double linear_offset[3];   /**< estimated linear velocity offset, m/s */
     double angular_offset[3];  /**< estimated angular velocity offset, rad/s */
+    double linear_velocity_noise;  /**< m/s, per-sample noise std in use (adapted with adaptive_noise) */
+    double angular_velocity_noise; /**< rad/s, likewise */
+    double pixel_noise;            /**< px, likewise */
 } vl_pose_t;
 
 /** Running counters; all monotonic since vl_init. */
@@ -214,6 +218,7 @@ typedef struct {
     uint64_t landmarks_deferred;        /**< admissions postponed because the window was full */
     uint64_t tracks_inconsistent;       /**< candidate observations that disagreed with their track's previous one */
     uint64_t frames_reassociated;       /**< frames whose tracked observations were all distrusted */
+    uint64_t frames_repeated;           /**< frames repeating the previous frame's pixels exactly (a stale image) */
     uint64_t tracks_broken;             /**< window landmarks whose observation contradicted them: mapped, id restarted */
     uint64_t landmarks_marginalized;    /**< left the window and handed to the sink */
     uint64_t landmarks_evicted;         /**< of those, removed early to make room */
@@ -229,7 +234,7 @@ typedef struct {
 } vl_counter_entry_t;
 
 /** Number of members of vl_counters_t. */
-#define VL_NUM_COUNTERS 24
+#define VL_NUM_COUNTERS 25
 
 /** Per-landmark bookkeeping of the window (internal; read with vl_get_landmarks). */
 typedef struct {
@@ -308,6 +313,16 @@ typedef struct {
     uint8_t work_support[VL_MAX_LANDMARKS];
     uint32_t work_broken[VL_MAX_LANDMARKS];
     uint32_t num_broken;
+
+    /** Noise levels in use: the configured values, adapted online when adaptive_noise is set. */
+    double linear_velocity_var;  /**< (m/s)^2 per sample */
+    double angular_velocity_var; /**< (rad/s)^2 per sample */
+    double pixel_var;            /**< px^2 */
+    uint32_t reassociated_run;   /**< consecutive frames distrusted as re-associations */
+
+    /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
+    uint32_t num_prev_obs;
+    vl_stereo_obs_t prev_obs[VL_MAX_FRAME_FEATURES];
 } vl_estimator_t;
 
 /** Fills the tuned default configuration (measured best on 0027; see README). */
