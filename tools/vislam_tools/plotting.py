@@ -172,3 +172,36 @@ def animate_topdown(scene, out_path, max_frames=100, fps=10, dpi=90, hold_frames
                        duration=durations, loop=0, optimize=False)
     except (OSError, ValueError) as exc:
         raise ToolError(f"cannot write {out_path}: {exc}") from exc
+
+
+def plot_consistency(times, e_body, sigma, nees, out_path, title="", chi2_95=None, dpi=120):
+    """Per-axis body-frame position error against +-3 sigma over time, and the position NEES."""
+    t = np.asarray(times, dtype=float) - float(times[0])
+    fig, axes = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
+    for i, (ax, name) in enumerate(zip(axes[:3], ("x (forward)", "y (left)", "z (up)"))):
+        band = 3.0 * sigma[:, i]
+        ax.fill_between(t, -band, band, color="tab:blue", alpha=0.2, linewidth=0, label="±3σ (filter)")
+        ax.plot(t, band, "-", color="tab:blue", lw=0.6)
+        ax.plot(t, -band, "-", color="tab:blue", lw=0.6)
+        ax.plot(t, e_body[:, i], "-", color="tab:red", lw=0.9, label="error")
+        ax.set_ylabel(f"{name} (m)")
+        ax.grid(True, linewidth=0.3, alpha=0.5)
+    axes[0].legend(loc="upper left", fontsize=8)
+    ax = axes[3]
+    ax.semilogy(t, nees, "-", color="k", lw=0.8, label="position NEES (diagonal)")
+    ax.axhline(3.0, color="tab:green", lw=1.0, label="expected 3")
+    if chi2_95 is not None:
+        ax.axhline(chi2_95, color="tab:orange", lw=1.0, ls="--", label="χ²(3) 95 %")
+    ax.set_ylabel("NEES")
+    ax.set_xlabel("time (s)")
+    ax.grid(True, linewidth=0.3, alpha=0.5)
+    ax.legend(loc="upper left", fontsize=8)
+    if title:
+        axes[0].set_title(title, fontsize=10)
+    fig.tight_layout()
+    try:
+        fig.savefig(out_path, dpi=dpi)
+    except OSError as exc:
+        raise ToolError(f"cannot write {out_path}: {exc}") from exc
+    finally:
+        plt.close(fig)
