@@ -2,8 +2,8 @@
 # Benchmarks that print the figures (accuracy, robustness, window size, timing, daemon latency,
 # trajectory figures, the accuracy test bed). Numbers only: no threshold ever fails the run.
 #
-#   tools/bench.sh                          every section (about 8-13 minutes)
-#   tools/bench.sh --quick                  shorter variants (about 3-4 minutes)
+#   tools/bench.sh                          every section (about 5-10 minutes)
+#   tools/bench.sh --quick                  shorter variants (about 2-3 minutes)
 #   tools/bench.sh --section timing ...     only these sections (repeatable, or comma-separated):
 #                                           accuracy sweep window timing daemon figures conditions
 # Options: --data DIR (default ../shared/data), --build-dir DIR (default build-bench),
