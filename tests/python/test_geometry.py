@@ -3,7 +3,7 @@ import pytest
 
 from vislam_tools.geometry import (integrate_dead_reckoning, make_pose, quat_to_rot, quat_wxyz_to_xyzw,
                                    quat_xyzw_to_wxyz, rot_to_quat, rotation_angle, se3_exp, se3_inv,
-                                   so3_exp, so3_log, umeyama, hat6)
+                                   se3_log, so3_exp, so3_log, umeyama, hat6)
 from vislam_tools.metrics import ate
 
 RNG = np.random.default_rng(7)
@@ -117,6 +117,12 @@ def test_so3_log_inverts_exp(angle):
                                [0.0, 0.0, 0.0, 1e-9, 0.0, 0.0]])
 def test_se3_exp_matches_matrix_exponential(u):
     np.testing.assert_allclose(se3_exp(np.array(u)), expm_series(hat6(np.array(u))), atol=1e-12)
+
+
+@pytest.mark.parametrize("u", [[1.0, 0.2, -0.3, 0.0, 0.0, 0.0], [1.0, 0.2, -0.3, 0.1, -0.4, 0.9],
+                               [0.5, -2.0, 0.1, 1e-9, 0.0, 2e-9], [0.3, 0.1, 0.2, 0.0, 3.0, 0.0]])
+def test_se3_log_inverts_se3_exp(u):
+    np.testing.assert_allclose(se3_log(se3_exp(np.array(u))), u, atol=1e-10)
 
 
 def test_se3_inv():

@@ -39,6 +39,7 @@ typedef struct {
     const char *map_path;
     const char *config_path;
     const char *stats_path;
+    const char *covariance_path;
     const char *mode;
     const char *preset;
     const char *max_landmarks;
@@ -136,6 +137,9 @@ static void usage(FILE *f)
             "                       time tx ty tz qx qy qz qw (IMU frame in world, time in s)\n"
             "  --map FILE           ASCII PLY of the marginalized landmarks\n"
             "                       (x y z id sigma observations first_time)\n"
+            "  --covariance FILE    the pose covariance's diagonal, one line per trajectory line:\n"
+            "                       time var_rho_x var_rho_y var_rho_z var_phi_x var_phi_y var_phi_z\n"
+            "                       (body-frame right perturbation, m^2 and rad^2, see vislam.h)\n"
             "  --config FILE        INI configuration on top of the defaults (see tools/vislam.ini)\n"
             "  --preset NAME        default|seed: start from this preset (conflicts with a different\n"
             "                       [estimator] preset in the config file)\n"
@@ -172,6 +176,8 @@ static int parse_args(int argc, char **argv, options_t *o)
             target = &o->map_path;
         } else if (strcmp(a, "--config") == 0) {
             target = &o->config_path;
+        } else if (strcmp(a, "--covariance") == 0) {
+            target = &o->covariance_path;
         } else if (strcmp(a, "--stats-json") == 0) {
             target = &o->stats_path;
         } else if (strcmp(a, "--mode") == 0) {
@@ -333,6 +339,19 @@ static timing_summary_t summarize(samples_t *s)
 }
 
 /* ---- outputs ---- */
+
+/* One line per pose: the time exactly as the TUM writer prints it, so the two files pair by
+   time, then the diagonal of the 6x6 pose covariance. Write errors are found by ferror at close. */
+static void write_covariance_line(FILE *f, int64_t utime, const vl_pose_t *pose)
+{
+    const char *sign = utime < 0 ? "-" : "";
+    const uint64_t mag = utime < 0 ? (uint64_t)0 - (uint64_t)utime : (uint64_t)utime;
+    fprintf(f, "%s%llu.%06llu", sign, (unsigned long long)(mag / 1000000u), (unsigned long long)(mag % 1000000u));
+    for (int i = 0; i < 6; ++i) {
+        fprintf(f, " %.9g", pose->covariance[i * 6 + i]);
+    }
+    fputc('\n', f);
+}
 
 static int write_ply(const char *path, const map_t *m)
 {
@@ -602,6 +621,18 @@ int main(int argc, char **argv)
         return 1;
     }
 
+    FILE *cov_file = NULL;
+    if (o.covariance_path != NULL) {
+        cov_file = fopen(o.covariance_path, "w");
+        if (cov_file == NULL) {
+            fprintf(stderr, "vislam-run: cannot write covariance %s: %s\n", o.covariance_path, strerror(errno));
+            vl_trajectory_close(&traj);
+            vl_log_reader_close(&reader);
+            free(est);
+            return 1;
+        }
+    }
+
     int initialized = 0;
     int inputs_fed = 0; /* once inputs reached the estimator, a new calibration cannot restart it */
     const char *calib_source = "none";
@@ -610,6 +641,9 @@ int main(int argc, char **argv)
            that arrives before any input replaces it. */
         if (vl_init(est, &cfg) != VL_OK) {
             fprintf(stderr, "vislam-run: vl_init refused the configuration\n");
+            if (cov_file != NULL) {
+                fclose(cov_file);
+            }
             vl_trajectory_close(&traj);
             vl_log_reader_close(&reader);
             free(est);
@@ -695,6 +729,9 @@ int main(int argc, char **argv)
                 vl_pose_t pose;
                 if (vl_get_pose(est, &pose) == VL_OK) {
                     vl_trajectory_write(&traj, ev.frame.utime, &pose);
+                    if (cov_file != NULL) {
+                        write_covariance_line(cov_file, ev.frame.utime, &pose);
+                    }
                     run.trajectory_lines++;
                 }
             }
@@ -719,6 +756,13 @@ int main(int argc, char **argv)
     if (vl_trajectory_close(&traj) != 0) {
         fprintf(stderr, "vislam-run: write error on trajectory %s\n", o.trajectory_path);
         io_error = 1;
+    }
+    if (cov_file != NULL) {
+        int bad = ferror(cov_file);
+        if (fclose(cov_file) != 0 || bad) {
+            fprintf(stderr, "vislam-run: write error on covariance %s\n", o.covariance_path);
+            io_error = 1;
+        }
     }
     if (map.oom) {
         fprintf(stderr, "vislam-run: out of memory collecting the map; it is incomplete\n");

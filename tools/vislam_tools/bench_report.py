@@ -10,6 +10,8 @@ the others.
   timing ROWS     label, stats.json (vislam-run --timing --stats-json)
   callgrind DIR   per-call costs from the dumps of callgrind --dump-after=vl_update
   daemon ROWS     label, vislamd stderr, vislam-replay --summary-json
+  conditions ROWS drive, velocities, K, truth, conditions summary.json, ate.json (dead reckoning),
+                  ate.json (default); --json OUT (cell -> numbers), --png OUT (figure)
 """
 
 import argparse
@@ -272,6 +274,69 @@ def cmd_daemon(args):
     print(_table(header, rows))
 
 
+def _condition_cells(rows_path):
+    cells = []
+    for drive, vel, k, truth, summary_path, dr_path, slam_path in _rows(rows_path):
+        summary = _load_json(summary_path)
+        cells.append({
+            "cell": f"{drive}/{vel}/K{k}",
+            "drive": drive,
+            "velocities": vel,
+            "keep_every": int(k),
+            "truth": truth,
+            "obs_per_frame": _get(summary, "observations_per_step"),
+            "dr_ate": _get(_load_json(dr_path), "ate", "rmse"),
+            "vislam_ate": _get(_load_json(slam_path), "ate", "rmse"),
+        })
+    return cells
+
+
+def _ratio(c):
+    if c["dr_ate"] is None or c["vislam_ate"] is None:
+        return "n/a"
+    if c["truth"] != "ground truth" and c["vislam_ate"] < 1e-6:
+        return "(reference)"
+    if c["dr_ate"] < 1e-3:
+        return "(DR exact)"
+    return _fmt(c["vislam_ate"] / c["dr_ate"], 2)
+
+
+def cmd_conditions(args):
+    cells = _condition_cells(args.rows)
+    header = ["drive", "velocities", "tracks kept", "obs. per frame", "ATE dead reckoning (m)",
+              "ATE vislam default (m)", "vislam / DR", "truth"]
+    rows = [[c["drive"], c["velocities"], "all" if c["keep_every"] == 1 else f"1 in {c['keep_every']}",
+             _fmt(c["obs_per_frame"], 1), _fmt(c["dr_ate"], 2), _fmt(c["vislam_ate"], 2), _ratio(c),
+             c["truth"]] for c in cells]
+    print(_table(header, rows))
+    # the same, vislam ATE only, one line per drive and velocities, one column per density
+    ks = sorted({c["keep_every"] for c in cells})
+    lines = []
+    for c in cells:
+        key = (c["drive"], c["velocities"])
+        if key not in lines:
+            lines.append(key)
+    by = {(c["drive"], c["velocities"], c["keep_every"]): c for c in cells}
+    pivot = []
+    for drive, vel in lines:
+        row = [drive, vel]
+        for k in ks:
+            c = by.get((drive, vel, k))
+            row.append("" if c is None else f"{_fmt(c['vislam_ate'], 2)} / {_fmt(c['dr_ate'], 2)}")
+        pivot.append(row)
+    print()
+    print("ATE vislam / dead reckoning (m), by tracks kept:")
+    print()
+    print(_table(["drive", "velocities"] + ["all" if k == 1 else f"1 in {k}" for k in ks], pivot))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({c["cell"]: {k: v for k, v in c.items() if k != "cell"} for c in cells}, f, indent=2)
+            f.write("\n")
+    if args.png:
+        from .plotting import plot_conditions
+        plot_conditions(cells, args.png)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="bench_report", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -280,12 +345,16 @@ def main(argv=None):
         p = sub.add_parser(name)
         p.add_argument("rows")
         p.add_argument("--json")
+    p = sub.add_parser("conditions")
+    p.add_argument("rows")
+    p.add_argument("--json")
+    p.add_argument("--png")
     p = sub.add_parser("callgrind")
     p.add_argument("dir")
     p.add_argument("--json")
     args = ap.parse_args(argv)
     return {"ate": cmd_ate, "window": cmd_window, "timing": cmd_timing, "callgrind": cmd_callgrind,
-            "daemon": cmd_daemon}[args.cmd](args) or 0
+            "daemon": cmd_daemon, "conditions": cmd_conditions}[args.cmd](args) or 0
 
 
 if __name__ == "__main__":

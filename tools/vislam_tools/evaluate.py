@@ -12,9 +12,9 @@ import numpy as np
 
 from . import ToolError
 from .geometry import integrate_dead_reckoning, se3_inv
-from .metrics import associate, ate, rpe
-from .trajio import (Trajectory, load_calibration, load_npz, read_ground_truth, read_ply, read_tum,
-                     write_tum)
+from .metrics import CHI2_3DOF_95, associate, ate, consistency, rpe
+from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, read_ground_truth, read_ply,
+                     read_tum, write_tum)
 
 EPILOG = """\
 Formats:
@@ -31,10 +31,28 @@ Examples:
   evaluate ate --estimate slam.tum --gt ../shared/data/gt/kitti_odometry_07.txt --calib ../shared/data/0027.npz
   evaluate plot --estimate slam.tum --dead-reckoning dr.tum --map map.ply --out fig.png
   evaluate animate --estimate slam.tum --map map.ply --out run.gif
+  evaluate consistency --estimate slam.tum --covariance slam.cov --gt ../shared/data/gt/kitti_odometry_07.txt \\
+      --calib ../shared/data/0027.npz --out consistency.png
+"""
+
+CONSISTENCY_EPILOG = """\
+Per frame: the position error in the body frame, e = R_est^T (p_gt - p_est), against the filter's
+own standard deviation (vislam-run --covariance: the diagonal of the pose covariance over a right,
+body-frame perturbation, so its position part is the body-frame error to first order). Printed:
+the fraction of frames with |e| <= 3 sigma per axis (about 0.997 for a consistent filter) and the
+mean position NEES, e^T diag(var)^-1 e (3 for a consistent filter; the file has no correlations
+between axes, so this NEES uses the diagonal only).
+
+Alignment caveat: with --align se3 (the default) the ground truth is first moved onto the estimate
+by the rigid Umeyama fit of the whole trajectory, as for the ATE. That fit spreads the drift over
+the run: early errors grow and late ones shrink, and it uses knowledge the filter never had. The
+filter's covariance is relative to its first pose (known exactly); --align none compares in that
+frame (for KITTI ground truth, the IMU frame at step 0, the estimator's start), which is the
+honest test of a filter started at the truth.
 """
 
 
-def _add_gt_args(p, required):
+def _add_gt_args(p, required, scale=True):
     p.add_argument("--gt", required=required, metavar="GT",
                    help="ground truth: KITTI odometry poses (.txt) or TUM (e.g. the simulator's truth)")
     p.add_argument("--gt-format", choices=("auto", "tum", "kitti"), default="auto",
@@ -47,8 +65,9 @@ def _add_gt_args(p, required):
                         "pose, or by line index; auto = time, else relative (default auto)")
     p.add_argument("--max-dt", type=float, default=0.02, metavar="S",
                    help="largest time difference accepted when pairing (default 0.02 s)")
-    p.add_argument("--scale", action="store_true",
-                   help="Sim(3) alignment (also estimate scale); default is rigid SE(3)")
+    if scale:
+        p.add_argument("--scale", action="store_true",
+                       help="Sim(3) alignment (also estimate scale); default is rigid SE(3)")
 
 
 def build_parser():
@@ -82,6 +101,19 @@ def build_parser():
             p.add_argument("--max-frames", type=int, default=100, help="frames drawn (default 100)")
             p.add_argument("--fps", type=int, default=10, help="GIF frame rate (default 10)")
             p.add_argument("--dpi", type=int, default=90, help="GIF resolution (default 90: 540x450 px)")
+
+    p = sub.add_parser("consistency", help="position error against the filter's 3 sigma over time, NEES",
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=CONSISTENCY_EPILOG)
+    p.add_argument("--estimate", required=True, metavar="EST.tum", help="estimated trajectory (TUM)")
+    p.add_argument("--covariance", required=True, metavar="COV.txt",
+                   help="vislam-run --covariance output of the same run (time and 6 variances per line)")
+    _add_gt_args(p, required=True, scale=False)
+    p.add_argument("--align", choices=("se3", "none"), default="se3",
+                   help="rigid Umeyama alignment of the whole trajectory, or none (default se3; see below)")
+    p.add_argument("--out", metavar="FIG.png", help="figure: error and +-3 sigma per axis, and the NEES")
+    p.add_argument("--title", default=None, help="figure title")
+    p.add_argument("--json", metavar="OUT.json", help="also write the numbers as JSON")
+    p.add_argument("--dpi", type=int, default=120)
 
     p = sub.add_parser("deadreckon", help="integrate a dataset's velocities into a TUM trajectory",
                        description="w_T_i(t+1) = w_T_i(t) exp(tau_t hat(u_t)), w_T_i(0) = I; one line per step.")
@@ -191,6 +223,58 @@ def cmd_animate(args):
     return 0
 
 
+def cmd_consistency(args):
+    est = read_tum(args.estimate)
+    cov_times, cov_var = read_covariance(args.covariance)
+    # Both files print the time exactly from the same microsecond stamp: pair on it.
+    cov_index = {int(u): i for i, u in enumerate(np.round(cov_times * 1e6).astype(np.int64))}
+    est_us = np.round(est.times * 1e6).astype(np.int64)
+    rows = np.array([cov_index.get(int(u), -1) for u in est_us])
+    if np.any(rows < 0):
+        raise ToolError(f"{int(np.sum(rows < 0))} of {len(est)} poses of {args.estimate} have no line of the "
+                        f"same time in {args.covariance}: use the files of one vislam-run run")
+    calib = load_calibration(args.calib) if args.calib else None
+    gt = read_ground_truth(args.gt, calib, args.gt_format)
+    ei, gi, mode = associate(est.times, gt.times, args.associate, args.max_dt)
+    if len(ei) < 3:
+        raise ToolError(f"only {len(ei)} estimate/GT pairs (association '{mode}', max dt {args.max_dt} s): "
+                        "check the time stamps, or use --associate relative|index")
+    est_p = est.poses[ei]
+    gt_pos = gt.poses[gi, :3, 3]
+    if args.align == "se3":
+        _, _, t_align, _ = ate(est_p[:, :3, 3], gt_pos)
+        inv = se3_inv(t_align)
+        gt_pos = gt_pos @ inv[:3, :3].T + inv[:3, 3]  # the truth in the estimate's frame
+    res, e_body, sigma, nees, _ = consistency(est_p, gt_pos, cov_var[rows[ei], :3])
+    res.update(estimate=args.estimate, covariance=args.covariance, ground_truth=args.gt, association=mode,
+               alignment=args.align, nees_chi2_95=CHI2_3DOF_95)
+    inside = res["inside_3sigma"]
+    print(f"pairs: {len(ei)} of {len(est)} estimate / {len(gt)} GT poses (association: {mode}, "
+          f"alignment: {args.align}); {res['frames_used']} frames with a positive variance")
+    print("inside 3 sigma (body frame): " + ", ".join(f"{ax} {100 * inside[ax]:.1f} %" for ax in "xyz"))
+    print("error rms / sigma rms (m): " + ", ".join(
+        f"{ax} {res['error_rms_body'][ax]:.3f} / {res['sigma_rms_body'][ax]:.3f}" for ax in "xyz"))
+    print(f"position NEES (3 dof, diagonal): mean {res['nees_mean']:.2f}, median {res['nees_median']:.2f} "
+          f"(expected 3); over the chi2 95 % bound {CHI2_3DOF_95:.2f} in {100 * res['nees_over_chi2_95']:.1f} % "
+          "of the frames (expected 5 %)")
+    if args.json:
+        try:
+            with open(args.json, "w") as f:
+                json.dump(res, f, indent=2)
+                f.write("\n")
+        except OSError as exc:
+            raise ToolError(f"cannot write {args.json}: {exc.strerror}") from exc
+    if args.out:
+        from .plotting import plot_consistency
+        title = args.title
+        if title is None:
+            title = (f"{args.estimate.rsplit('/', 1)[-1]}: body-frame position error vs 3σ "
+                     f"(alignment {args.align}; NEES mean {res['nees_mean']:.1f})")
+        plot_consistency(est.times[ei], e_body, sigma, nees, args.out, title, CHI2_3DOF_95, dpi=args.dpi)
+        print(f"wrote {args.out}")
+    return 0
+
+
 def cmd_deadreckon(args):
     data = load_npz(args.data)
     ts = np.asarray(data["time_stamps"], dtype=float).reshape(-1)
@@ -206,7 +290,8 @@ def cmd_deadreckon(args):
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
-    handlers = {"ate": cmd_ate, "plot": cmd_plot, "animate": cmd_animate, "deadreckon": cmd_deadreckon}
+    handlers = {"ate": cmd_ate, "plot": cmd_plot, "animate": cmd_animate, "deadreckon": cmd_deadreckon,
+                "consistency": cmd_consistency}
     try:
         return handlers[args.command](args)
     except ToolError as exc:

@@ -75,6 +75,20 @@ def se3_exp(u):
     return t
 
 
+def se3_log(t):
+    """4x4 SE(3) matrix -> twist [v, w] (the inverse of se3_exp, rotation angle below pi)."""
+    t = np.asarray(t, dtype=float)
+    phi = so3_log(t[:3, :3])
+    theta = np.linalg.norm(phi)
+    k = hat3(phi)
+    if theta < 1e-6:
+        jac_inv = np.eye(3) - 0.5 * k + k @ k / 12.0
+    else:
+        jac_inv = (np.eye(3) - 0.5 * k
+                   + (1.0 / theta ** 2 - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(theta))) * k @ k)
+    return np.concatenate([jac_inv @ t[:3, 3], phi])
+
+
 def se3_inv(t):
     """Inverse of a 4x4 rigid transform (or a stack of them, shape (..., 4, 4))."""
     t = np.asarray(t, dtype=float)

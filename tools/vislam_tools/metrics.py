@@ -109,3 +109,49 @@ def rpe(est_poses, gt_poses, delta):
         "rot_mean_deg": float(np.mean(rot)),
         "rot_max_deg": float(np.max(rot)),
     }
+
+
+# 0.95 quantile of chi-square with 3 degrees of freedom: a consistent filter's position NEES
+# exceeds it in about 5 % of the frames.
+CHI2_3DOF_95 = 7.814727903251178
+
+
+def consistency(est_poses, gt_positions, position_var):
+    """Body-frame position error of an estimate against its own reported variance.
+
+    est_poses (N, 4, 4) world-from-body; gt_positions (N, 3) in the estimate's world frame (already
+    aligned); position_var (N, 3) the diagonal of the position block of a right (body-frame)
+    perturbation, T = T_hat exp(xi): to first order xi_rho = R_hat^T (p - p_hat).
+    Frames with a non-positive variance (e.g. the exactly known first pose) are left out of the
+    statistics. Returns (summary dict, e_body (N, 3), sigma (N, 3), nees (N,), used mask (N,)).
+    The NEES uses the diagonal only (the file has no correlations between axes).
+    """
+    est_poses = np.asarray(est_poses, dtype=float)
+    gt_positions = np.asarray(gt_positions, dtype=float)
+    var = np.asarray(position_var, dtype=float)
+    n = est_poses.shape[0]
+    if gt_positions.shape != (n, 3) or var.shape != (n, 3):
+        raise ToolError(f"consistency needs (N, 3) positions and variances for N = {n} poses, "
+                        f"got {gt_positions.shape} and {var.shape}")
+    diff = gt_positions - est_poses[:, :3, 3]
+    e_body = np.einsum("nji,nj->ni", est_poses[:, :3, :3], diff)  # R^T d
+    used = np.all(var > 0, axis=1) & np.all(np.isfinite(var), axis=1)
+    if not used.any():
+        raise ToolError("no frame has a positive position variance")
+    sigma = np.sqrt(np.where(var > 0, var, np.nan))
+    nees = np.full(n, np.nan)
+    nees[used] = np.sum(e_body[used] ** 2 / var[used], axis=1)
+    inside = np.abs(e_body[used]) <= 3.0 * sigma[used]
+    m = int(used.sum())
+    summary = {
+        "frames": int(n),
+        "frames_used": m,
+        "inside_3sigma": {ax: float(inside[:, i].mean()) for i, ax in enumerate("xyz")},
+        "nees_mean": float(np.mean(nees[used])),
+        "nees_median": float(np.median(nees[used])),
+        "nees_over_chi2_95": float(np.mean(nees[used] > CHI2_3DOF_95)),
+        "nees_expected": 3.0,
+        "error_rms_body": {ax: float(np.sqrt(np.mean(e_body[used, i] ** 2))) for i, ax in enumerate("xyz")},
+        "sigma_rms_body": {ax: float(np.sqrt(np.mean(var[used, i]))) for i, ax in enumerate("xyz")},
+    }
+    return summary, e_body, sigma, nees, used

@@ -172,3 +172,127 @@ def animate_topdown(scene, out_path, max_frames=100, fps=10, dpi=90, hold_frames
                        duration=durations, loop=0, optimize=False)
     except (OSError, ValueError) as exc:
         raise ToolError(f"cannot write {out_path}: {exc}") from exc
+
+
+def plot_consistency(times, e_body, sigma, nees, out_path, title="", chi2_95=None, dpi=120):
+    """Per-axis body-frame position error against +-3 sigma over time, and the position NEES."""
+    t = np.asarray(times, dtype=float) - float(times[0])
+    fig, axes = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
+    for i, (ax, name) in enumerate(zip(axes[:3], ("x (forward)", "y (left)", "z (up)"))):
+        band = 3.0 * sigma[:, i]
+        ax.fill_between(t, -band, band, color="tab:blue", alpha=0.2, linewidth=0, label="±3σ (filter)")
+        ax.plot(t, band, "-", color="tab:blue", lw=0.6)
+        ax.plot(t, -band, "-", color="tab:blue", lw=0.6)
+        ax.plot(t, e_body[:, i], "-", color="tab:red", lw=0.9, label="error")
+        ax.set_ylabel(f"{name} (m)")
+        ax.grid(True, linewidth=0.3, alpha=0.5)
+    axes[0].legend(loc="upper left", fontsize=8)
+    ax = axes[3]
+    ax.semilogy(t, nees, "-", color="k", lw=0.8, label="position NEES (diagonal)")
+    ax.axhline(3.0, color="tab:green", lw=1.0, label="expected 3")
+    if chi2_95 is not None:
+        ax.axhline(chi2_95, color="tab:orange", lw=1.0, ls="--", label="χ²(3) 95 %")
+    ax.set_ylabel("NEES")
+    ax.set_xlabel("time (s)")
+    ax.grid(True, linewidth=0.3, alpha=0.5)
+    ax.legend(loc="upper left", fontsize=8)
+    if title:
+        axes[0].set_title(title, fontsize=10)
+    fig.tight_layout()
+    try:
+        fig.savefig(out_path, dpi=dpi)
+    except OSError as exc:
+        raise ToolError(f"cannot write {out_path}: {exc}") from exc
+    finally:
+        plt.close(fig)
+
+
+# Dead reckoning closer than this to the truth (clean velocities) makes the ratio meaningless.
+RATIO_DR_EXACT = 1e-3  # m
+RATIO_RANGE = (0.02, 50.0)  # drawn range of the ratio; bars beyond it are clipped and labelled
+
+
+def plot_conditions(cells, out_path, dpi=120):
+    """Test-bed cells: vislam ATE / dead-reckoning ATE as grouped bars (one group per drive and
+    velocity condition, one bar per feature density), log scale, with the ratio-1 line; and the
+    absolute vislam ATE as a heat map. cells: dicts with drive, velocities, keep_every, dr_ate,
+    vislam_ate, truth."""
+    groups = []
+    for c in cells:
+        key = (c["drive"], c["velocities"])
+        if key not in groups:
+            groups.append(key)
+    ks = sorted({c["keep_every"] for c in cells})
+    by = {(c["drive"], c["velocities"], c["keep_every"]): c for c in cells}
+
+    def value(c, what):
+        if c is None or c.get("vislam_ate") is None or c.get("dr_ate") is None:
+            return np.nan
+        if what == "ratio":
+            return c["vislam_ate"] / c["dr_ate"] if c["dr_ate"] > 0 else np.inf
+        return c["vislam_ate"]
+
+    def note(c):
+        # cells whose ratio says nothing: the pseudo-truth's own run, and exact dead reckoning
+        if c is None or c.get("vislam_ate") is None or c.get("dr_ate") is None:
+            return "n/a"
+        if c["truth"] != "ground truth" and c["vislam_ate"] < 1e-6:
+            return "ref."
+        if c["dr_ate"] < RATIO_DR_EXACT:
+            return "DR≈0"
+        return ""
+
+    ratio = np.array([[value(by.get(g + (k,)), "ratio") for k in ks] for g in groups])
+    notes = [[note(by.get(g + (k,))) for k in ks] for g in groups]
+    ate = np.array([[value(by.get(g + (k,)), "ate") for k in ks] for g in groups])
+    labels = []
+    for drive, vel in groups:
+        pseudo = any(c["truth"] != "ground truth" for c in cells if (c["drive"], c["velocities"]) == (drive, vel))
+        labels.append(f"{drive}\n{vel}" + ("\n(pseudo-truth)" if pseudo else ""))
+    fig, (ax, hm) = plt.subplots(2, 1, figsize=(max(8.0, 1.1 * len(groups) + 2), 9),
+                                 gridspec_kw={"height_ratios": [3, 2]})
+    width = 0.8 / max(len(ks), 1)
+    x = np.arange(len(groups))
+    cmap = plt.get_cmap("viridis")
+    lo, hi = RATIO_RANGE
+    for j, k in enumerate(ks):
+        xs = x + (j - (len(ks) - 1) / 2) * width
+        shown = np.array([np.nan if notes[i][j] else ratio[i, j] for i in range(len(groups))])
+        ax.bar(xs, np.clip(shown, lo, hi), width, color=cmap(j / max(len(ks) - 1, 1)),
+               label="all tracks" if k == 1 else f"1 track in {k}")
+        for i in range(len(groups)):
+            text = notes[i][j] or (f"{ratio[i, j]:.3g}" if not lo <= ratio[i, j] <= hi else "")
+            if text:
+                ax.text(xs[i], lo * 1.15, text, rotation=90, ha="center", va="bottom", fontsize=6)
+    ax.axhline(1.0, color="k", lw=1.0, ls="--", label="= dead reckoning")
+    ax.set_yscale("log")
+    ax.set_ylim(lo, hi)
+    ax.set_xticks(x)
+    ax.set_xticklabels(labels, fontsize=7)
+    ax.set_ylabel("ATE vislam / ATE dead reckoning")
+    ax.set_title("vislam default against dead reckoning per cell (below 1: vislam is better)", fontsize=10)
+    ax.grid(True, axis="y", which="both", linewidth=0.3, alpha=0.5)
+    ax.legend(fontsize=8, ncol=len(ks) + 1, loc="upper left")
+    finite = ate[np.isfinite(ate)]
+    im = hm.imshow(ate.T, aspect="auto", cmap="magma_r",
+                   norm=matplotlib.colors.LogNorm(vmin=max(finite.min(), 1e-2), vmax=max(finite.max(), 1e-1))
+                   if finite.size and finite.max() > 0 else None)
+    for i in range(len(groups)):
+        for j in range(len(ks)):
+            if np.isfinite(ate[i, j]):
+                hm.text(i, j, "ref." if notes[i][j] == "ref." else f"{ate[i, j]:.1f}", ha="center", va="center", fontsize=7,
+                        color="w" if finite.size and ate[i, j] > np.sqrt(finite.min() * finite.max()) else "k")
+    hm.set_xticks(x)
+    hm.set_xticklabels(labels, fontsize=7)
+    hm.set_yticks(np.arange(len(ks)))
+    hm.set_yticklabels(["all" if k == 1 else f"1 in {k}" for k in ks], fontsize=8)
+    hm.set_ylabel("tracks kept")
+    hm.set_title("ATE of the vislam default (m)", fontsize=10)
+    fig.colorbar(im, ax=hm, label="m")
+    fig.tight_layout()
+    try:
+        fig.savefig(out_path, dpi=dpi)
+    except OSError as exc:
+        raise ToolError(f"cannot write {out_path}: {exc}") from exc
+    finally:
+        plt.close(fig)

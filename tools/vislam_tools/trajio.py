@@ -310,3 +310,17 @@ def read_ground_truth(path, calib=None, fmt="auto"):
         raise ToolError(f"{path}: KITTI file has no time column and the calibration source has no step times")
     poses = calib.imu_T_cam @ cam_poses @ calib.cam_T_imu
     return Trajectory(abs_times, poses, "ground truth")
+
+
+def read_covariance(path):
+    """vislam-run --covariance: `time` and 6 variances per line. Returns (times (N,), var (N, 6))."""
+    times, var = [], []
+    for lineno, row in _numeric_rows(path, "covariance"):
+        if row.size != 7:
+            raise ToolError(f"{path}:{lineno}: covariance lines need 7 numbers (time and the 6 diagonal "
+                            f"entries var_rho_xyz var_phi_xyz), got {row.size}")
+        times.append(row[0])
+        var.append(row[1:])
+    if not times:
+        raise ToolError(f"{path}: no covariance lines")
+    return np.array(times), np.array(var)
