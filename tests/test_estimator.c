@@ -211,6 +211,27 @@ void test_update_counts_invalid_observations(void)
     TEST_ASSERT_EQUAL_UINT32(2, vl_window_size(&est));
 }
 
+void test_update_counts_a_repeated_image_and_nothing_else(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    start_at(&cfg, 1000000);
+    make_frame(&cfg, &frame, 1100000, 6, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    frame.utime = 1200000; /* the same pixels again, later: a stale image */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->frames_repeated);
+    frame.utime = 1300000; /* one pixel moved: a new image */
+    frame.obs[5].u_left += 0.25;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    frame.utime = 1400000; /* new ids only: nothing shared, nothing repeated */
+    make_frame(&cfg, &frame, 1400000, 6, 100);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->frames_repeated);
+    TEST_ASSERT_EQUAL_UINT64(4, vl_get_counters(&est)->frames_accepted);
+}
+
 /* ------------------------------------------------------------ prediction */
 
 void test_propagate_follows_exponential_map(void)
@@ -606,5 +627,6 @@ int main(void)
     RUN_TEST(test_window_admits_the_largest_disparity_first);
     RUN_TEST(test_get_landmarks_reports_capacity_shortfall);
     RUN_TEST(test_update_uses_at_most_max_update_observations);
+    RUN_TEST(test_update_counts_a_repeated_image_and_nothing_else);
     return UNITY_END();
 }

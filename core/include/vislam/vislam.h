@@ -296,6 +296,16 @@ typedef struct {
     uint32_t num_pending;
     vl_pending_track_t pending[VL_MAX_PENDING];
 
+    /** Noise levels in use: the configured values, adapted online when adaptive_noise is set. */
+    double linear_velocity_var;  /**< (m/s)^2 per sample */
+    double angular_velocity_var; /**< (rad/s)^2 per sample */
+    double pixel_var;            /**< px^2 */
+    uint32_t reassociated_run;   /**< consecutive frames distrusted as re-associations */
+
+    /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
+    uint32_t num_prev_obs;
+    vl_stereo_obs_t prev_obs[VL_MAX_FRAME_FEATURES];
+
     /** Joint covariance, column-major with leading dimension VL_STATE_DIM_MAX. */
     double P[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX] VL_ALIGNED(VL_ESTIMATOR_ALIGN);
 
@@ -313,16 +323,6 @@ typedef struct {
     uint8_t work_support[VL_MAX_LANDMARKS];
     uint32_t work_broken[VL_MAX_LANDMARKS];
     uint32_t num_broken;
-
-    /** Noise levels in use: the configured values, adapted online when adaptive_noise is set. */
-    double linear_velocity_var;  /**< (m/s)^2 per sample */
-    double angular_velocity_var; /**< (rad/s)^2 per sample */
-    double pixel_var;            /**< px^2 */
-    uint32_t reassociated_run;   /**< consecutive frames distrusted as re-associations */
-
-    /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
-    uint32_t num_prev_obs;
-    vl_stereo_obs_t prev_obs[VL_MAX_FRAME_FEATURES];
 } vl_estimator_t;
 
 /** Fills the tuned default configuration (measured best on 0027; see README). */
