@@ -139,6 +139,8 @@ check "final status: last_input_utime is the last frame's" eq "$(value "$A" stat
 check "final status: window capacity 128, 0 < landmarks <= 128, landmarks mapped > 0" \
   test "$(value "$A" status.last.window_capacity)" = 128 -a "$(value "$A" status.last.window_landmarks)" -gt 0 \
   -a "$(value "$A" status.last.window_landmarks)" -le 128 -a "$(value "$A" status.last.landmarks_mapped)" -gt 0
+check "final status: the noise in use is published (positive)" awk -v a="$(value "$A" status.last.linear_velocity_noise)" \
+  -v b="$(value "$A" status.last.angular_velocity_noise)" -v c="$(value "$A" status.last.pixel_noise)" 'BEGIN { exit !(a > 0 && b > 0 && c > 0) }'
 check "final status: observations gated > 0 (the sample has outliers)" test "$(value "$A" status.last.observations_gated)" -gt 0
 check "final status: budget = sensor period (99..109 ms)" \
   test "$(value "$A" status.last.budget_us)" -ge 99000 -a "$(value "$A" status.last.budget_us)" -le 109000

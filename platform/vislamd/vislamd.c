@@ -487,6 +487,12 @@ static void publish_status(daemon_t *d)
     s->latency_p99_us = clamp32(vl_latency_percentile(&d->lat_all, 99.0));
     s->latency_p999_us = clamp32(vl_latency_percentile(&d->lat_all, 99.9));
     s->latency_max_us = clamp32(vl_latency_max(&d->lat_all));
+    vl_pose_t pose;
+    const int have_pose = d->initialized && vl_get_pose(&g_est, &pose) == VL_OK;
+    s->linear_velocity_noise = have_pose ? pose.linear_velocity_noise : d->cfg.linear_velocity_noise;
+    s->angular_velocity_noise = have_pose ? pose.angular_velocity_noise : d->cfg.angular_velocity_noise;
+    s->pixel_noise = have_pose ? pose.pixel_noise : d->cfg.pixel_noise;
+    s->frames_repeated = (int64_t)c->frames_repeated;
     const int len = vislam_status_t_encode(d->status_buf, 0, (int)sizeof(d->status_buf), s);
     publish(d, CH_STATUS, d->status_buf, len);
     d->n.status_out++;

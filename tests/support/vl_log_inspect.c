@@ -70,7 +70,13 @@ static void print_status(const char *which, const vislam_status_t *s)
     F64(latency_p99_us);
     F64(latency_p999_us);
     F64(latency_max_us);
+    F64(frames_repeated);
 #undef F64
+#define FDBL(f) printf("status.%s.%s %.9g\n", which, #f, s->f)
+    FDBL(linear_velocity_noise);
+    FDBL(angular_velocity_noise);
+    FDBL(pixel_noise);
+#undef FDBL
 }
 
 int main(int argc, char **argv)
