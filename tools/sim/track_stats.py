@@ -146,37 +146,6 @@ def one_step_errors(D, W, k, k2, pose_k, pose_k2, depth_max=60.0):
     return ids, err
 
 
-def world_points(D, W, stale, depth_max=40.0):
-    """Per id, the median world position over its non-stale observations triangulated with GT pose k."""
-    valid = D["valid"]
-    M = valid.shape[0]
-    acc = [[] for _ in range(M)]
-    for k in range(len(W)):
-        if stale[k]:
-            continue
-        ids = np.nonzero(valid[:, k])[0]
-        pc = triangulate(D, k, ids)
-        ok = np.isfinite(pc[:, 2]) & (pc[:, 2] > 2.0) & (pc[:, 2] < depth_max)
-        pw = transform(W[k], pc[ok])
-        for i, p in zip(ids[ok], pw):
-            acc[i].append(p)
-    X = np.full((M, 3), np.nan)
-    for i in range(M):
-        if len(acc[i]) >= 3:
-            X[i] = np.median(np.array(acc[i]), axis=0)
-    return X
-
-
-def frame_error(D, W, X, k, pose):
-    ids = np.nonzero(D["valid"][:, k] & np.isfinite(X[:, 0]))[0]
-    if len(ids) < 5:
-        return np.nan
-    pc = transform(np.linalg.inv(W[pose]), X[ids])
-    ok = pc[:, 2] > 1.0
-    uv = project(D, pc[ok])
-    return float(np.median(np.linalg.norm(uv - D["f"][0:2, ids[ok], k].T, axis=1)))
-
-
 def report(name, D, gt_path):
     f, valid = D["f"], D["valid"]
     M, T = valid.shape
