@@ -34,6 +34,46 @@ def load(path):
     }
 
 
+def load_lcmlog(path, build_dir):
+    """The same arrays from an LCM log (vislam-sim's or npz2lcm's), for comparing the simulator."""
+    sys.path.insert(0, os.path.join(build_dir, "lcm_types", "python"))
+    import lcm  # noqa: E402  (the project venv has it)
+    from vislam import calibration_t, stereo_frame_t  # noqa: E402  (generated at build time)
+    calib, frames = None, []
+    for ev in lcm.EventLog(path, "r"):
+        if ev.channel.endswith("CALIB") and calib is None:
+            calib = calibration_t.decode(ev.data)
+        elif ev.channel.endswith("FEATURES"):
+            m = stereo_frame_t.decode(ev.data)
+            n = m.num_features
+            obs = np.array([m.u_left[:n], m.v_left[:n], m.u_right[:n], m.v_right[:n]], dtype=float).T
+            frames.append((m.utime, np.array(m.id[:n], dtype=np.int64), obs))
+    ids = np.unique(np.concatenate([fr[1] for fr in frames]))
+    col = {int(i): j for j, i in enumerate(ids)}
+    f = np.full((4, len(ids), len(frames)), -1.0)
+    for t, (_, fid, obs) in enumerate(frames):
+        f[:, [col[int(i)] for i in fid], t] = obs.T
+    K = np.array([[calib.fx, 0, calib.cx], [0, calib.fy, calib.cy], [0, 0, 1]])
+    return {"f": f, "valid": f[0] >= 0, "K": K, "b": float(calib.baseline),
+            "cam_T_imu": np.array(calib.cam_T_imu, dtype=float).reshape(4, 4),
+            "t": np.array([fr[0] for fr in frames]) * 1e-6}
+
+
+def tum_cam_poses(path, cam_T_imu):
+    """Left-camera poses in the world from a TUM file of IMU poses: w_T_cam = w_T_i * imu_T_cam."""
+    rows = np.loadtxt(path)
+    P = np.zeros((len(rows), 4, 4))
+    for i, (_, x, y, z, qx, qy, qz, qw) in enumerate(rows):
+        R = np.array([
+            [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+            [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+            [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)]])
+        P[i, :3, :3] = R
+        P[i, :3, 3] = (x, y, z)
+        P[i, 3, 3] = 1.0
+    return P @ np.linalg.inv(cam_T_imu)
+
+
 def pct(x):
     return 100.0 * x
 
@@ -146,7 +186,7 @@ def one_step_errors(D, W, k, k2, pose_k, pose_k2, depth_max=60.0):
     return ids, err
 
 
-def report(name, D, gt_path):
+def report(name, D, W):
     f, valid = D["f"], D["valid"]
     M, T = valid.shape
     print(f"== {name}: {T} frames, {M} ids")
@@ -207,9 +247,9 @@ def report(name, D, gt_path):
           f"continuations (an upper bound on re-associations: near points beside far ones move apart "
           f"by parallax; the ground truth on 0027 separates them)")
 
-    if gt_path is None:
+    if W is None:
         return
-    W = gt_cam_poses(gt_path, T)
+    W = W[:T]
     Tg = len(W)
     stale = stale[:Tg]
     print(f"-- ground truth: {Tg} poses (left camera)")
@@ -325,14 +365,23 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", default=default_data)
     ap.add_argument("--drives", default="0022,0027,0034")
+    ap.add_argument("--lcmlog", help="measure this LCM log (e.g. vislam-sim's) instead of the drives")
+    ap.add_argument("--truth", help="with --lcmlog: its TUM truth (IMU poses), for the ground-truth part")
+    ap.add_argument("--build", default=os.path.normpath(os.path.join(here, "..", "..", "build")),
+                    help="build directory holding the generated LCM Python types")
     a = ap.parse_args()
+    if a.lcmlog:
+        D = load_lcmlog(a.lcmlog, a.build)
+        report(os.path.basename(a.lcmlog), D, tum_cam_poses(a.truth, D["cam_T_imu"]) if a.truth else None)
+        return 0
     for name in a.drives.split(","):
         path = os.path.join(a.data, name + ".npz")
         if not os.path.exists(path):
             print(f"{path}: missing, skipped", file=sys.stderr)
             continue
+        D = load(path)
         gt = os.path.join(a.data, "gt", "kitti_odometry_07.txt") if name == "0027" else None
-        report(name, load(path), gt if gt and os.path.exists(gt) else None)
+        report(name, D, gt_cam_poses(gt, D["valid"].shape[1]) if gt and os.path.exists(gt) else None)
     return 0
 
 
