@@ -65,7 +65,7 @@
  * changes the noise only.
  *
  * Memory: the caller owns the vl_sim_t (see VL_SIM_* capacities; about
- * 0.8 MB, so prefer static or heap storage over the stack). Nothing
+ * 1.4 MB, so prefer static or heap storage over the stack). Nothing
  * allocates; vl_sim_step does a fixed amount of work per live point.
  */
 #ifndef VISLAM_VL_SIM_H
