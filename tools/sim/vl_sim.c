@@ -817,6 +817,8 @@ int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
         }
         pt->track_id = sim->next_track_id++;
         pt->remaining = draw_track_length(sim) - 1;
+        pt->shifted = 0; /* a new track sees the point where it is */
+        memset(pt->shift, 0, sizeof(pt->shift));
         point_position(pt, pose->utime, sim->track_x[(uint32_t)pt->track_id % VL_SIM_MAX_TRACKS]);
         sim->cand_point[n_obs++] = i;
     }
