@@ -705,7 +705,7 @@ static void reassociate_frame(vl_sim_t *sim, const vl_sim_pose_t *pose, uint32_t
 }
 
 /** Moves what a track sees by T(k+1) T(k)^-1, so it shows pose k at step k + 1 (motion lost). */
-static void lose_one_step(vl_sim_t *sim, vl_sim_point_t *pt, const vl_sim_pose_t *k0, const vl_sim_pose_t *k1)
+static void lose_one_step(vl_sim_point_t *pt, const vl_sim_pose_t *k0, const vl_sim_pose_t *k1)
 {
     double y[3], d[3], b[3];
     int i;
@@ -720,7 +720,6 @@ static void lose_one_step(vl_sim_t *sim, vl_sim_point_t *pt, const vl_sim_pose_t
         pt->shift[i] += k1->R[3 * i] * b[0] + k1->R[3 * i + 1] * b[1] + k1->R[3 * i + 2] * b[2] + k1->p[i] - y[i];
     }
     pt->shifted = 1;
-    (void)sim;
 }
 
 int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
@@ -880,7 +879,7 @@ int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
     if (stale) {
         const vl_sim_pose_t *next = ring_at(sim, sim->step + 1);
         for (i = 0; i < n_cont; ++i) {
-            lose_one_step(sim, &sim->points[sim->cand_point[i]], pose, next);
+            lose_one_step(&sim->points[sim->cand_point[i]], pose, next);
         }
         ++sim->counts.stale_frames;
     }
