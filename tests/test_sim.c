@@ -5,7 +5,7 @@
 #include "unity.h"
 #include "vl_sim.h"
 
-/* Static: a simulator is about 0.8 MB. */
+/* Static: a simulator is about 1.4 MB. */
 static vl_sim_t g_a;
 static vl_sim_t g_b;
 static vl_stereo_frame_t g_fa;
@@ -296,6 +296,459 @@ static void test_vl_sim_step_observation_statistics_like_real_data(void)
     TEST_ASSERT_TRUE((double)obs / vl_sim_tracks_issued(&g_a) < 25.0);
 }
 
+/* ---------- realistic conditions ---------- */
+
+static uint64_t fnv_mix(uint64_t h, const void *data, size_t n)
+{
+    const unsigned char *p = (const unsigned char *)data;
+    size_t i;
+    for (i = 0; i < n; ++i) {
+        h = (h ^ p[i]) * 0x100000001B3ull;
+    }
+    return h;
+}
+
+/** Hash of every output of a run (IMU, frames, truth), in step order. */
+static uint64_t run_hash(const vl_sim_config_t *cfg)
+{
+    vl_imu_sample_t imu;
+    double R[9], p[3];
+    uint64_t h = 0xcbf29ce484222325ull;
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, cfg));
+    while (vl_sim_step(&g_a, &imu, &g_fa, R, p) == 0) {
+        h = fnv_mix(h, &imu, sizeof(imu));
+        h = fnv_mix(h, &g_fa.utime, sizeof(g_fa.utime));
+        h = fnv_mix(h, &g_fa.count, sizeof(g_fa.count));
+        h = fnv_mix(h, g_fa.obs, g_fa.count * sizeof(g_fa.obs[0]));
+        h = fnv_mix(h, R, sizeof(R));
+        h = fnv_mix(h, p, sizeof(p));
+    }
+    return h;
+}
+
+static void test_vl_sim_conditions_off_leave_outputs_bit_identical(void)
+{
+    vl_sim_config_t cfg;
+    vl_sim_counts_t counts;
+    vl_sim_config_default(&cfg);
+    cfg.seed = 5;
+    cfg.noise_seed = 3;
+    cfg.num_steps = 400;
+    /* The simulator before the realistic conditions existed gave this hash for this run (the build
+       is ISO C99, so no floating-point contraction changes the bits; data/sample.lcmlog relies on
+       the same). Off must stay exactly that. */
+    TEST_ASSERT_EQUAL_HEX64(0x15C6790AAE7F80CBull, run_hash(&cfg));
+    TEST_ASSERT_EQUAL_INT32(1794, vl_sim_tracks_issued(&g_a));
+    vl_sim_counts(&g_a, &counts);
+    TEST_ASSERT_EQUAL_UINT64(0, counts.stale_frames + counts.reassociations + counts.mismatches);
+    /* Ranges and speeds without their fractions turn nothing on. */
+    cfg.far_disparity_min = 1.0;
+    cfg.far_disparity_max = 3.0;
+    cfg.moving_speed = 4.0;
+    cfg.reassoc_radius = 50.0;
+    cfg.reassoc_fraction = 0.5;
+    TEST_ASSERT_EQUAL_HEX64(0x15C6790AAE7F80CBull, run_hash(&cfg));
+}
+
+static void test_vl_sim_init_rejects_bad_conditions(void)
+{
+    vl_sim_config_t cfg;
+    vl_sim_config_default(&cfg);
+    cfg.stale_probability = 1.5;
+    TEST_ASSERT_EQUAL_INT(-1, vl_sim_init(&g_a, &cfg));
+    vl_sim_config_default(&cfg);
+    cfg.far_fraction = 0.1; /* with no disparity range */
+    TEST_ASSERT_EQUAL_INT(-1, vl_sim_init(&g_a, &cfg));
+    vl_sim_config_default(&cfg);
+    cfg.calib_rotation_error[1] = NAN;
+    TEST_ASSERT_EQUAL_INT(-1, vl_sim_init(&g_a, &cfg));
+    vl_sim_config_default(&cfg);
+    cfg.reassoc_radius = -1.0;
+    TEST_ASSERT_EQUAL_INT(-1, vl_sim_init(&g_a, &cfg));
+    vl_sim_config_default(&cfg);
+    vl_sim_config_realistic(&cfg);
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+}
+
+/** Index of id in a frame, or -1. */
+static int find_id(const vl_stereo_frame_t *f, int32_t id)
+{
+    uint32_t i;
+    for (i = 0; i < f->count; ++i) {
+        if (f->obs[i].id == id) {
+            return (int)i;
+        }
+    }
+    return -1;
+}
+
+/** 1 when every observation of prev is in cur with exactly the same id and pixels. */
+static int repeats(const vl_stereo_frame_t *cur, const vl_stereo_frame_t *prev)
+{
+    uint32_t i;
+    for (i = 0; i < prev->count; ++i) {
+        const int j = find_id(cur, prev->obs[i].id);
+        if (j < 0 || memcmp(&cur->obs[j], &prev->obs[i], sizeof(prev->obs[i])) != 0) {
+            return 0;
+        }
+    }
+    return prev->count > 0;
+}
+
+static void test_vl_sim_stale_frames_repeat_exactly_then_lose_one_step(void)
+{
+    static vl_stereo_frame_t prev, at_stale;
+    vl_sim_config_t cfg;
+    vl_sim_counts_t counts;
+    vl_calibration_t cal;
+    double R[9], p[3], pprev[3] = {0, 0, 0}, Rstale[9], pstale[3], x[3], px[3];
+    int k, stale_seen = 0, checked = 0, after_stale = 0;
+    int32_t unshifted_from = 0, unshifted_next = 0, carried_below = 0;
+    uint32_t i;
+    vl_sim_config_default(&cfg);
+    cfg.num_steps = 400;
+    cfg.pixel_noise = 0.0;
+    cfg.stale_probability = 0.1;
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+    vl_sim_calibration(&g_a, &cal);
+    for (k = 0;; ++k) {
+        const int32_t issued_before = vl_sim_tracks_issued(&g_a);
+        int stale;
+        if (vl_sim_step(&g_a, NULL, &g_fa, R, p) != 0) {
+            break;
+        }
+        stale = k > 0 && repeats(&g_fa, &prev);
+        if (after_stale && !stale) {
+            /* Tracks carried over the stale frame (and over no earlier one) now show their point
+               as seen from the stale frame's pose: one step of motion lost. */
+            for (i = 0; i < g_fa.count; ++i) {
+                const int32_t id = g_fa.obs[i].id;
+                if (id < unshifted_from || id >= carried_below || find_id(&at_stale, id) < 0) {
+                    continue;
+                }
+                TEST_ASSERT_EQUAL_INT(0, vl_sim_landmark(&g_a, id, x));
+                reproject(&cal, Rstale, pstale, x, px);
+                TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[0], g_fa.obs[i].u_left);
+                TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[1], g_fa.obs[i].v_left);
+                TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[2], g_fa.obs[i].u_right);
+                reproject(&cal, R, p, x, px); /* and not from the frame's own pose */
+                TEST_ASSERT_TRUE(fabs(px[0] - g_fa.obs[i].u_left) + fabs(px[1] - g_fa.obs[i].v_left) > 1e-3);
+                ++checked;
+            }
+        }
+        after_stale = 0;
+        if (stale) {
+            ++stale_seen;
+            /* The truth moves on while the pixels stand still. */
+            TEST_ASSERT_TRUE(fabs(p[0] - pprev[0]) + fabs(p[1] - pprev[1]) > 0.5);
+            at_stale = g_fa;
+            memcpy(Rstale, R, sizeof(R));
+            memcpy(pstale, p, sizeof(p));
+            after_stale = 1;
+            /* Ids from the previous stale frame's new ones up to this frame's new ones are unshifted. */
+            unshifted_from = unshifted_next;
+            carried_below = issued_before;
+            unshifted_next = issued_before;
+        }
+        prev = g_fa;
+        memcpy(pprev, p, sizeof(p));
+    }
+    vl_sim_counts(&g_a, &counts);
+    TEST_ASSERT_EQUAL_UINT64(counts.stale_frames, (uint64_t)stale_seen);
+    TEST_ASSERT_TRUE(stale_seen > 20 && stale_seen < 65); /* 10 % of 399 */
+    TEST_ASSERT_TRUE(checked > 300);
+}
+
+static void test_vl_sim_detection_frames_are_the_stale_ones(void)
+{
+    static vl_stereo_frame_t prev;
+    vl_sim_config_t cfg;
+    int k, stale_frames = 0, prev_stale = 0;
+    uint32_t i;
+    vl_sim_config_default(&cfg);
+    cfg.num_steps = 500;
+    cfg.max_observations = 60;
+    cfg.detect_below_fraction = 0.5; /* 30 */
+    cfg.detect_new_fraction = 0.4;   /* 24 */
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+    for (k = 0; vl_sim_step(&g_a, NULL, &g_fa, NULL, NULL) == 0; ++k) {
+        uint32_t fresh = 0;
+        const int stale = k > 0 && repeats(&g_fa, &prev);
+        for (i = 0; i < g_fa.count; ++i) {
+            fresh += k > 0 && find_id(&prev, g_fa.obs[i].id) < 0;
+        }
+        if (k > 0) {
+            /* New tracks only on stale frames; stale exactly when the last frame fell under 30
+               observations and was not stale itself. */
+            TEST_ASSERT_TRUE(fresh == 0 || stale);
+            TEST_ASSERT_EQUAL_INT(prev.count < 30 && !prev_stale, stale);
+            TEST_ASSERT_TRUE(fresh <= 24);
+        }
+        stale_frames += stale;
+        prev_stale = stale;
+        prev = g_fa;
+    }
+    TEST_ASSERT_TRUE(stale_frames > 10);
+}
+
+static void test_vl_sim_reassociated_ids_jump_to_another_point(void)
+{
+    vl_sim_config_t cfg;
+    vl_sim_counts_t counts;
+    vl_calibration_t cal;
+    double R[9], p[3], x[3], px[3];
+    uint32_t i;
+    long jumped_obs = 0, first_jumps = 0;
+    vl_sim_config_default(&cfg);
+    cfg.num_steps = 300;
+    cfg.pixel_noise = 0.0;
+    cfg.reassoc_probability = 0.5;
+    cfg.reassoc_fraction = 0.05;
+    cfg.reassoc_radius = 40.0;
+    memset(g_id_state, 0, sizeof(g_id_state));
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+    vl_sim_calibration(&g_a, &cal);
+    while (vl_sim_step(&g_a, NULL, &g_fa, R, p) == 0) {
+        for (i = 0; i < g_fa.count; ++i) {
+            const vl_stereo_obs_t *o = &g_fa.obs[i];
+            double err;
+            TEST_ASSERT_EQUAL_INT(0, vl_sim_landmark(&g_a, o->id, x));
+            reproject(&cal, R, p, x, px);
+            err = hypot(o->u_left - px[0], o->v_left - px[1]);
+            if (err > 1e-6) {
+                ++jumped_obs;
+                if (g_id_state[o->id] == 0) {
+                    /* At the hand-over the new point lies within the radius of the old one. */
+                    TEST_ASSERT_TRUE(err <= cfg.reassoc_radius + 1e-9);
+                    g_id_state[o->id] = 1;
+                    ++first_jumps;
+                }
+            } else {
+                /* Once handed over, an id never shows its first point again. */
+                TEST_ASSERT_EQUAL_UINT8(0, g_id_state[o->id]);
+            }
+        }
+    }
+    vl_sim_counts(&g_a, &counts);
+    TEST_ASSERT_EQUAL_UINT64(0, counts.stale_frames + counts.mismatches);
+    TEST_ASSERT_TRUE(counts.reassociations > 50);
+    /* Every hand-over shows (an id handed over twice counts once), and the id continues there. */
+    TEST_ASSERT_TRUE(first_jumps <= (long)counts.reassociations && first_jumps > (long)counts.reassociations * 8 / 10);
+    TEST_ASSERT_TRUE(jumped_obs > 3 * first_jumps);
+}
+
+/** World point of an observation through the true pose and a calibration (stereo triangulation). */
+static void triangulate_world(const vl_calibration_t *cal, const double R[9], const double p[3],
+                              const vl_stereo_obs_t *o, double w[3])
+{
+    const double *T = cal->cam_T_imu;
+    const double z = cal->fx * cal->baseline / (o->u_left - o->u_right);
+    const double c[3] = {(o->u_left - cal->cx) * z / cal->fx, (o->v_left - cal->cy) * z / cal->fy, z};
+    double d[3], b[3];
+    int i;
+    for (i = 0; i < 3; ++i) {
+        d[i] = c[i] - T[4 * i + 3];
+    }
+    for (i = 0; i < 3; ++i) { /* b = R_ci^T (c - t) */
+        b[i] = T[i] * d[0] + T[4 + i] * d[1] + T[8 + i] * d[2];
+    }
+    for (i = 0; i < 3; ++i) {
+        w[i] = R[3 * i] * b[0] + R[3 * i + 1] * b[1] + R[3 * i + 2] * b[2] + p[i];
+    }
+}
+
+static void test_vl_sim_moving_points_move_at_their_speed(void)
+{
+    vl_sim_config_t cfg;
+    vl_calibration_t cal;
+    double R[9], p[3], w[3];
+    static double first[MAX_IDS][4]; /* x, y, z, time of the first observation */
+    int moving_pass;
+    uint32_t i;
+    for (moving_pass = 0; moving_pass < 2; ++moving_pass) {
+        long tracks = 0, at_speed = 0;
+        double max_static = 0.0;
+        vl_sim_config_default(&cfg);
+        cfg.num_steps = 200;
+        cfg.pixel_noise = 0.0;
+        cfg.moving_fraction = moving_pass ? 1.0 : 0.0;
+        cfg.moving_speed = 5.0;
+        memset(g_id_state, 0, sizeof(g_id_state));
+        TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+        vl_sim_calibration(&g_a, &cal);
+        while (vl_sim_step(&g_a, NULL, &g_fa, R, p) == 0) {
+            const double t = (double)g_fa.utime * 1e-6;
+            for (i = 0; i < g_fa.count; ++i) {
+                const int32_t id = g_fa.obs[i].id;
+                triangulate_world(&cal, R, p, &g_fa.obs[i], w);
+                if (g_id_state[id] == 0) {
+                    memcpy(first[id], w, sizeof(w));
+                    first[id][3] = t;
+                    g_id_state[id] = 1;
+                } else if (t - first[id][3] > 1.0) {
+                    const double dx = w[0] - first[id][0], dy = w[1] - first[id][1], dz = w[2] - first[id][2];
+                    const double dist = sqrt(dx * dx + dy * dy + dz * dz);
+                    if (g_id_state[id] == 1) {
+                        ++tracks;
+                        at_speed += fabs(dist / (t - first[id][3]) - cfg.moving_speed) < 1e-3 && fabs(dz) < 1e-6;
+                        g_id_state[id] = 2;
+                    }
+                    if (dist > max_static) {
+                        max_static = dist;
+                    }
+                }
+            }
+        }
+        TEST_ASSERT_TRUE(tracks > 100);
+        if (moving_pass) {
+            TEST_ASSERT_EQUAL_INT(tracks, at_speed); /* horizontal, constant speed */
+        } else {
+            TEST_ASSERT_TRUE(max_static < 1e-4); /* rounding of an 80 m triangulation */
+        }
+    }
+}
+
+static void test_vl_sim_mismatches_replace_single_observations(void)
+{
+    vl_sim_config_t cfg;
+    vl_sim_counts_t counts;
+    vl_calibration_t cal;
+    double R[9], p[3], x[3], px[3];
+    uint32_t i;
+    long off = 0;
+    vl_sim_config_default(&cfg);
+    cfg.num_steps = 200;
+    cfg.pixel_noise = 0.0;
+    cfg.mismatch_probability = 0.02;
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+    vl_sim_calibration(&g_a, &cal);
+    while (vl_sim_step(&g_a, NULL, &g_fa, R, p) == 0) {
+        for (i = 0; i < g_fa.count; ++i) {
+            const vl_stereo_obs_t *o = &g_fa.obs[i];
+            TEST_ASSERT_EQUAL_INT(0, vl_sim_landmark(&g_a, o->id, x));
+            reproject(&cal, R, p, x, px);
+            off += fabs(o->u_left - px[0]) + fabs(o->v_left - px[1]) + fabs(o->u_right - px[2]) > 1e-6;
+            TEST_ASSERT_TRUE(o->u_left >= 0.0 && o->u_left <= cfg.image_width - 1.0);
+            TEST_ASSERT_TRUE(o->u_right >= 0.0 && o->u_left >= o->u_right);
+        }
+    }
+    vl_sim_counts(&g_a, &counts);
+    TEST_ASSERT_EQUAL_INT64((int64_t)counts.mismatches, off);
+    TEST_ASSERT_TRUE(off > 100); /* 2 % of about 17,000 */
+}
+
+static void test_vl_sim_far_points_have_small_disparity(void)
+{
+    vl_sim_config_t cfg;
+    int far_pass;
+    uint32_t i;
+    for (far_pass = 0; far_pass < 2; ++far_pass) {
+        long small = 0, n = 0;
+        vl_sim_config_default(&cfg);
+        cfg.num_steps = 150;
+        cfg.pixel_noise = 0.0;
+        cfg.far_fraction = far_pass ? 0.2 : 0.0;
+        cfg.far_disparity_min = 1.0;
+        cfg.far_disparity_max = 3.0;
+        TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+        while (vl_sim_step(&g_a, NULL, &g_fa, NULL, NULL) == 0) {
+            for (i = 0; i < g_fa.count; ++i) {
+                const double d = g_fa.obs[i].u_left - g_fa.obs[i].u_right;
+                TEST_ASSERT_TRUE(d > 0.0);
+                small += d < 3.5; /* beyond max_depth (80 m gives 4.75 px) */
+                ++n;
+            }
+        }
+        if (far_pass) {
+            TEST_ASSERT_TRUE(small > n / 20);
+        } else {
+            TEST_ASSERT_EQUAL_INT(0, small);
+        }
+    }
+}
+
+static void test_vl_sim_calibration_error_moves_pixels_not_the_calibration(void)
+{
+    vl_sim_config_t cfg;
+    vl_calibration_t cal, truth_cal;
+    double R[9], p[3], x[3], px[3];
+    const double a = 0.5 * 3.14159265358979323846 / 180.0; /* 0.5 deg about the optical axis */
+    uint32_t i;
+    int j;
+    long n = 0;
+    double sum_nominal = 0.0;
+    vl_sim_config_default(&cfg);
+    cfg.num_steps = 100;
+    cfg.pixel_noise = 0.0;
+    cfg.calib_rotation_error[2] = 0.5;
+    cfg.calib_translation_error[0] = 0.02;
+    cfg.baseline_error = 0.01;
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+    vl_sim_calibration(&g_a, &cal);
+    TEST_ASSERT_EQUAL_MEMORY(&cfg.calibration, &cal, sizeof(cal));
+    /* The rig the observations come from, built here independently: Rz(a) * cam_T_imu, plus the
+       translation error, and the longer baseline. */
+    truth_cal = cal;
+    truth_cal.baseline = cal.baseline * 1.01;
+    for (j = 0; j < 4; ++j) {
+        const double r0 = cal.cam_T_imu[j], r1 = cal.cam_T_imu[4 + j];
+        truth_cal.cam_T_imu[j] = cos(a) * r0 - sin(a) * r1;
+        truth_cal.cam_T_imu[4 + j] = sin(a) * r0 + cos(a) * r1;
+    }
+    truth_cal.cam_T_imu[3] += 0.02;
+    while (vl_sim_step(&g_a, NULL, &g_fa, R, p) == 0) {
+        for (i = 0; i < g_fa.count; ++i) {
+            TEST_ASSERT_EQUAL_INT(0, vl_sim_landmark(&g_a, g_fa.obs[i].id, x));
+            reproject(&truth_cal, R, p, x, px);
+            TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[0], g_fa.obs[i].u_left);
+            TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[1], g_fa.obs[i].v_left);
+            TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[2], g_fa.obs[i].u_right);
+            reproject(&cal, R, p, x, px);
+            sum_nominal += hypot(g_fa.obs[i].u_left - px[0], g_fa.obs[i].v_left - px[1]);
+            ++n;
+        }
+    }
+    TEST_ASSERT_TRUE(n > 1000);
+    TEST_ASSERT_TRUE(sum_nominal / (double)n > 0.5); /* the nominal rig misses by pixels */
+}
+
+static void test_vl_sim_realistic_is_deterministic_and_noise_seed_changes_noise_only(void)
+{
+    vl_sim_config_t cfg;
+    vl_sim_counts_t ca, cb;
+    double Ra[9], pa[3], Rb[9], pb[3];
+    uint32_t i;
+    long differing = 0, obs = 0;
+    int steps = 0;
+    vl_sim_config_default(&cfg);
+    vl_sim_config_realistic(&cfg);
+    cfg.num_steps = 600;
+    TEST_ASSERT_EQUAL_HEX64(run_hash(&cfg), run_hash(&cfg));
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+    cfg.noise_seed = 42;
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_b, &cfg));
+    while (vl_sim_step(&g_a, NULL, &g_fa, Ra, pa) == 0) {
+        TEST_ASSERT_EQUAL_INT(0, vl_sim_step(&g_b, NULL, &g_fb, Rb, pb));
+        TEST_ASSERT_EQUAL_MEMORY(pa, pb, sizeof(pa));
+        TEST_ASSERT_EQUAL_UINT32(g_fa.count, g_fb.count);
+        for (i = 0; i < g_fa.count; ++i) {
+            TEST_ASSERT_EQUAL_INT32(g_fa.obs[i].id, g_fb.obs[i].id);
+            differing += g_fa.obs[i].u_left != g_fb.obs[i].u_left;
+        }
+        obs += g_fa.count;
+        ++steps;
+    }
+    vl_sim_counts(&g_a, &ca);
+    vl_sim_counts(&g_b, &cb);
+    TEST_ASSERT_EQUAL_UINT64(ca.stale_frames, cb.stale_frames);
+    TEST_ASSERT_EQUAL_UINT64(ca.reassociations, cb.reassociations);
+    TEST_ASSERT_TRUE(differing > obs / 2);
+    /* The real drives' rates: 8 to 11 % stale frames, 67 to 73 observations per frame. */
+    TEST_ASSERT_TRUE(ca.stale_frames > (uint64_t)steps * 6 / 100 && ca.stale_frames < (uint64_t)steps * 14 / 100);
+    TEST_ASSERT_TRUE((double)obs / steps > 55.0 && (double)obs / steps < 80.0);
+    TEST_ASSERT_TRUE(ca.reassociations > 0);
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -308,5 +761,15 @@ int main(void)
     RUN_TEST(test_vl_sim_step_truth_integrates_true_velocities);
     RUN_TEST(test_vl_sim_step_zero_noise_gives_exact_measurements);
     RUN_TEST(test_vl_sim_step_observation_statistics_like_real_data);
+    RUN_TEST(test_vl_sim_conditions_off_leave_outputs_bit_identical);
+    RUN_TEST(test_vl_sim_init_rejects_bad_conditions);
+    RUN_TEST(test_vl_sim_stale_frames_repeat_exactly_then_lose_one_step);
+    RUN_TEST(test_vl_sim_detection_frames_are_the_stale_ones);
+    RUN_TEST(test_vl_sim_reassociated_ids_jump_to_another_point);
+    RUN_TEST(test_vl_sim_moving_points_move_at_their_speed);
+    RUN_TEST(test_vl_sim_mismatches_replace_single_observations);
+    RUN_TEST(test_vl_sim_far_points_have_small_disparity);
+    RUN_TEST(test_vl_sim_calibration_error_moves_pixels_not_the_calibration);
+    RUN_TEST(test_vl_sim_realistic_is_deterministic_and_noise_seed_changes_noise_only);
     return UNITY_END();
 }

@@ -41,9 +41,30 @@ static void usage(FILE *f)
             "  --linear-offset X,Y,Z   constant linear velocity offset, m/s [0,0,0]\n"
             "  --angular-offset X,Y,Z  constant angular velocity offset, rad/s [0.005,0.005,0.005]\n"
             "  --speed MPS             mean forward speed [8]\n"
-            "  --points-per-meter N    world point density along the path [2]\n"
+            "  --points-per-meter N    world point density along the path [2.5]\n"
             "  --max-observations N    observations per frame, 1..256 [256]\n"
             "  --start-utime US        time of step 0, microseconds [1317384000000000]\n"
+            "realistic conditions (all off by default; see tools/sim/vl_sim.h):\n"
+            "  --realistic             every condition below at the rate measured on the seed\n"
+            "                          drives, with --max-observations 95 --points-per-meter 4\n"
+            "                          --pixel-noise 0.3; explicit options override it\n"
+            "  --stale-probability P   per frame: repeat the last frame's tracks exactly, which\n"
+            "                          then lose one step of motion [0]\n"
+            "  --detect-below F        start tracks only after a frame with fewer than\n"
+            "                          F x max-observations observations; such frames are stale [0]\n"
+            "  --detect-new F          at most F x max-observations new tracks per frame [0: no limit]\n"
+            "  --reassoc-probability P per frame: hand continued ids to other points [0]\n"
+            "  --reassoc-fraction F    share of the continued tracks handed over in such a frame [0]\n"
+            "  --reassoc-radius PX     farthest jump of a handed-over id [0]\n"
+            "  --moving-fraction F     share of points moving at a constant world velocity [0]\n"
+            "  --moving-speed MPS      speed of the moving points [0]\n"
+            "  --mismatch-probability P  per observation: pixels of a random location [0]\n"
+            "  --far-fraction F        share of points placed far ahead [0]\n"
+            "  --far-disparity MIN,MAX disparity range of far points, px [0,0]\n"
+            "  --calib-rotation-error X,Y,Z  deg, camera-frame rotation of the cam_T_imu the\n"
+            "                          observations use (the log carries the nominal one) [0,0,0]\n"
+            "  --calib-translation-error X,Y,Z  m, added to that cam_T_imu's translation [0,0,0]\n"
+            "  --baseline-error REL    relative error of the baseline the observations use [0]\n"
             "  --quiet                 no summary on stderr\n");
 }
 
@@ -74,6 +95,23 @@ static int parse_u64(const char *s, unsigned long long *out)
     }
     *out = v;
     return 0;
+}
+
+/** "min,max" */
+static int parse_pair(const char *s, double *lo, double *hi)
+{
+    char tmp[256];
+    char *a;
+    if (strlen(s) >= sizeof(tmp)) {
+        return -1;
+    }
+    strcpy(tmp, s);
+    a = strchr(tmp, ',');
+    if (a == NULL) {
+        return -1;
+    }
+    *a++ = '\0';
+    return (parse_double(tmp, lo) == 0 && parse_double(a, hi) == 0) ? 0 : -1;
 }
 
 /** "x,y,z" or a single value for all three axes. */
@@ -127,6 +165,12 @@ int main(int argc, char **argv)
     double R[9], p[3];
 
     vl_sim_config_default(&cfg);
+    /* The preset first, wherever it stands, so that every explicit option overrides it. */
+    for (i = 1; i < argc; ++i) {
+        if (strcmp(argv[i], "--realistic") == 0) {
+            vl_sim_config_realistic(&cfg);
+        }
+    }
     for (i = 1; i < argc; ++i) {
         const char *a = argv[i];
         const char *v = (i + 1 < argc) ? argv[i + 1] : NULL;
@@ -137,6 +181,8 @@ int main(int argc, char **argv)
             return 0;
         } else if (strcmp(a, "--quiet") == 0) {
             quiet = 1;
+            continue;
+        } else if (strcmp(a, "--realistic") == 0) {
             continue;
         }
         if (v == NULL) {
@@ -177,6 +223,34 @@ int main(int argc, char **argv)
         } else if (strcmp(a, "--max-observations") == 0) {
             bad = parse_u64(v, &u) != 0 || u > VL_MAX_FRAME_FEATURES;
             cfg.max_observations = (uint32_t)u;
+        } else if (strcmp(a, "--stale-probability") == 0) {
+            bad = parse_double(v, &cfg.stale_probability) != 0;
+        } else if (strcmp(a, "--detect-below") == 0) {
+            bad = parse_double(v, &cfg.detect_below_fraction) != 0;
+        } else if (strcmp(a, "--detect-new") == 0) {
+            bad = parse_double(v, &cfg.detect_new_fraction) != 0;
+        } else if (strcmp(a, "--reassoc-probability") == 0) {
+            bad = parse_double(v, &cfg.reassoc_probability) != 0;
+        } else if (strcmp(a, "--reassoc-fraction") == 0) {
+            bad = parse_double(v, &cfg.reassoc_fraction) != 0;
+        } else if (strcmp(a, "--reassoc-radius") == 0) {
+            bad = parse_double(v, &cfg.reassoc_radius) != 0;
+        } else if (strcmp(a, "--moving-fraction") == 0) {
+            bad = parse_double(v, &cfg.moving_fraction) != 0;
+        } else if (strcmp(a, "--moving-speed") == 0) {
+            bad = parse_double(v, &cfg.moving_speed) != 0;
+        } else if (strcmp(a, "--mismatch-probability") == 0) {
+            bad = parse_double(v, &cfg.mismatch_probability) != 0;
+        } else if (strcmp(a, "--far-fraction") == 0) {
+            bad = parse_double(v, &cfg.far_fraction) != 0;
+        } else if (strcmp(a, "--far-disparity") == 0) {
+            bad = parse_pair(v, &cfg.far_disparity_min, &cfg.far_disparity_max) != 0;
+        } else if (strcmp(a, "--calib-rotation-error") == 0) {
+            bad = parse_vec3(v, cfg.calib_rotation_error) != 0;
+        } else if (strcmp(a, "--calib-translation-error") == 0) {
+            bad = parse_vec3(v, cfg.calib_translation_error) != 0;
+        } else if (strcmp(a, "--baseline-error") == 0) {
+            bad = parse_double(v, &cfg.baseline_error) != 0;
         } else if (strcmp(a, "--start-utime") == 0) {
             bad = parse_u64(v, &u) != 0 || u > (unsigned long long)INT64_MAX / 2;
             cfg.start_utime = (int64_t)u;
@@ -196,7 +270,8 @@ int main(int argc, char **argv)
         return 2;
     }
     if (vl_sim_init(&g_sim, &cfg) != 0) {
-        fprintf(stderr, "vislam-sim: configuration out of range (check noise >= 0, max-observations >= 1)\n");
+        fprintf(stderr, "vislam-sim: configuration out of range (check noise >= 0, max-observations >= 1,\n"
+                        "probabilities and fractions in [0, 1], far disparities 0 < MIN <= MAX)\n");
         return 2;
     }
 
@@ -290,10 +365,17 @@ int main(int argc, char **argv)
     }
 
     if (rc == 0 && !quiet) {
+        vl_sim_counts_t counts;
         fprintf(stderr,
                 "vislam-sim: %llu steps, %.1f observations/frame, %ld track ids, %.1f m driven\n",
                 (unsigned long long)steps, steps ? (double)observations / (double)steps : 0.0,
                 (long)vl_sim_tracks_issued(&g_sim), vl_sim_distance(&g_sim));
+        vl_sim_counts(&g_sim, &counts);
+        if (counts.stale_frames + counts.reassociations + counts.mismatches > 0) {
+            fprintf(stderr, "vislam-sim: %llu stale frames, %llu ids re-associated, %llu mismatched observations\n",
+                    (unsigned long long)counts.stale_frames, (unsigned long long)counts.reassociations,
+                    (unsigned long long)counts.mismatches);
+        }
     }
     return rc;
 }

@@ -200,6 +200,36 @@ void vl_sim_config_default(vl_sim_config_t *cfg)
     }
 }
 
+void vl_sim_config_realistic(vl_sim_config_t *cfg)
+{
+    /* Rates from tools/sim/track_stats.py on 0022, 0027 and 0034 (0027's ground truth for the
+       outliers); see the README's vislam-sim paragraph. */
+    int i;
+    if (cfg == NULL) {
+        return;
+    }
+    cfg->max_observations = 95;
+    cfg->points_per_meter = 4.0;       /* enough untracked points for 35 to 48 new tracks per detection */
+    cfg->pixel_noise = 0.3;            /* v_left - v_right has a std of 0.38 px on every drive */
+    cfg->stale_probability = 0.0;      /* the real stale frames are the detection frames */
+    cfg->detect_below_fraction = 0.53; /* 50 of 95: detection when fewer than 50 tracks remain */
+    cfg->detect_new_fraction = 0.47;   /* 45 of 95: 35 to 48 new tracks per detection frame */
+    cfg->reassoc_probability = 0.04;   /* 0.044 ids per frame on 0027 jump and then continue */
+    cfg->reassoc_fraction = 0.02;      /* 1.3 ids in such a frame, of about 65 continued */
+    cfg->reassoc_radius = 60.0;
+    cfg->moving_fraction = 0.05;       /* 2.8 % of 0027's tracks have a median one-step error > 3 px */
+    cfg->moving_speed = 3.0;
+    cfg->mismatch_probability = 0.0002; /* 0.02 % of 0027's observations are off by > 10 px alone */
+    cfg->far_fraction = 0.06;          /* real: 1 to 5 % of observations under 2 px, 14 to 18 % under 5 */
+    cfg->far_disparity_min = 0.8;
+    cfg->far_disparity_max = 4.8;
+    for (i = 0; i < 3; ++i) {          /* a guess: the data cannot show a calibration error */
+        cfg->calib_rotation_error[i] = (i == 1) ? -0.1 : 0.1;
+        cfg->calib_translation_error[i] = (i == 1) ? -0.01 : 0.01;
+    }
+    cfg->baseline_error = 0.002;
+}
+
 static int finite_all(const double *x, size_t n)
 {
     size_t i;
@@ -209,6 +239,11 @@ static int finite_all(const double *x, size_t n)
         }
     }
     return 1;
+}
+
+static int unit_range(double x)
+{
+    return x >= 0.0 && x <= 1.0;
 }
 
 static int config_ok(const vl_sim_config_t *c)
@@ -221,10 +256,24 @@ static int config_ok(const vl_sim_config_t *c)
         c->scatter_exponent, c->height_min, c->height_max, c->image_width, c->image_height,
         c->border_margin, c->min_depth, c->max_depth, c->detect_probability,
         c->track_length_mean,
-        c->pixel_noise, c->linear_noise, c->angular_noise};
+        c->pixel_noise, c->linear_noise, c->angular_noise, c->stale_probability,
+        c->detect_below_fraction, c->detect_new_fraction, c->reassoc_probability, c->reassoc_fraction,
+        c->reassoc_radius, c->moving_fraction, c->moving_speed, c->mismatch_probability,
+        c->far_fraction, c->far_disparity_min, c->far_disparity_max, c->baseline_error};
     if (!finite_all(scalars, sizeof(scalars) / sizeof(scalars[0])) ||
         !finite_all(c->linear_offset, 3) || !finite_all(c->angular_offset, 3) ||
-        !finite_all(&c->calibration.fx, 5) || !finite_all(c->calibration.cam_T_imu, 16)) {
+        !finite_all(&c->calibration.fx, 5) || !finite_all(c->calibration.cam_T_imu, 16) ||
+        !finite_all(c->calib_rotation_error, 3) || !finite_all(c->calib_translation_error, 3)) {
+        return 0;
+    }
+    if (!(unit_range(c->stale_probability) && unit_range(c->detect_below_fraction) &&
+          unit_range(c->detect_new_fraction) && unit_range(c->reassoc_probability) &&
+          unit_range(c->reassoc_fraction) && unit_range(c->moving_fraction) &&
+          unit_range(c->mismatch_probability) && unit_range(c->far_fraction) &&
+          c->reassoc_radius >= 0.0 && c->moving_speed >= 0.0 && c->moving_speed < 1e3 &&
+          c->baseline_error > -0.5 && c->baseline_error < 0.5 &&
+          (c->far_fraction == 0.0 ||
+           (c->far_disparity_min > 0.0 && c->far_disparity_max >= c->far_disparity_min)))) {
         return 0;
     }
     return c->dt_min > 0.0 && c->dt_max >= c->dt_min && c->dt_max < 1000.0 &&
@@ -320,6 +369,28 @@ static int reject_point(const vl_sim_t *sim, uint64_t k, const double x[3])
     return 0;
 }
 
+/**
+ * Puts a point far ahead of the vehicle instead: at a depth whose disparity is uniform in
+ * [far_disparity_min, far_disparity_max], within the camera's horizontal view. Placed from the
+ * vehicle's current pose, not the segment's, so the disparity it is first seen with is the drawn one.
+ */
+static void place_far(vl_sim_t *sim, double x[3])
+{
+    const vl_sim_config_t *c = &sim->cfg;
+    vl_sim_rng_t *r = &sim->rng_place;
+    const vl_sim_pose_t *at = ring_at(sim, sim->step);
+    const double half_view = 0.6; /* rad: inside the KITTI camera's 40-degree half view */
+    const double bearing = half_view * (2.0 * rng_uniform(r) - 1.0);
+    const double disp = c->far_disparity_min + (c->far_disparity_max - c->far_disparity_min) * rng_uniform(r);
+    const double depth = c->calibration.fx * c->calibration.baseline / disp;
+    const double h = c->height_min + (c->height_max - c->height_min) * rng_uniform(r);
+    const double b[3] = {depth * cos(bearing), depth * sin(bearing), h};
+    int i;
+    for (i = 0; i < 3; ++i) {
+        x[i] = at->p[i] + at->R[3 * i] * b[0] + at->R[3 * i + 1] * b[1] + at->R[3 * i + 2] * b[2];
+    }
+}
+
 /** Scatters the points of planned segment k (from pose k to k + 1). */
 static void scatter_segment(vl_sim_t *sim, uint64_t k)
 {
@@ -337,16 +408,33 @@ static void scatter_segment(vl_sim_t *sim, uint64_t k)
         const double b[3] = {len * rng_uniform(r) + rad * cos(ang), rad * sin(ang), h};
         vl_sim_point_t *pt = &sim->points[sim->next_point];
         double x[3];
-        int i;
+        int i, far = 0;
 
         sim->spawn_carry -= 1.0;
         for (i = 0; i < 3; ++i) {
             x[i] = at->p[i] + at->R[3 * i] * b[0] + at->R[3 * i + 1] * b[1] + at->R[3 * i + 2] * b[2];
         }
-        if (reject_point(sim, k, x)) {
+        /* The map stream's draws above happen either way, so the other points stay where they were. */
+        if (c->far_fraction > 0.0 && rng_uniform(&sim->rng_place) < c->far_fraction) {
+            place_far(sim, x);
+            far = 1;
+        }
+        if (!far && reject_point(sim, k, x)) {
             continue;
         }
         memcpy(pt->x, x, sizeof(x));
+        memset(pt->v, 0, sizeof(pt->v));
+        memset(pt->shift, 0, sizeof(pt->shift));
+        pt->t0 = at->utime;
+        pt->far = (uint8_t)far;
+        pt->moving = 0;
+        pt->shifted = 0;
+        if (c->moving_fraction > 0.0 && rng_uniform(&sim->rng_place) < c->moving_fraction) {
+            const double heading = VL_SIM_TWO_PI * rng_uniform(&sim->rng_place);
+            pt->v[0] = c->moving_speed * cos(heading);
+            pt->v[1] = c->moving_speed * sin(heading);
+            pt->moving = 1;
+        }
         /* Recycling a slot silently ends the old point's track: its id is never seen again. */
         pt->track_id = -1;
         pt->remaining = 0;
@@ -386,6 +474,37 @@ static void plan_one(vl_sim_t *sim)
 
 /* ---------- public API ---------- */
 
+/** The calibration the observations are made with: the nominal one moved by the configured errors. */
+static void perturbed_calibration(const vl_sim_config_t *c, vl_calibration_t *out)
+{
+    const double deg = VL_SIM_TWO_PI / 360.0;
+    const double phi[3] = {c->calib_rotation_error[0] * deg, c->calib_rotation_error[1] * deg,
+                           c->calib_rotation_error[2] * deg};
+    const double *e = c->calib_translation_error;
+    double R[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1}, t[3] = {0, 0, 0};
+    double u[6];
+    const double *T = c->calibration.cam_T_imu;
+    int i, j;
+
+    *out = c->calibration;
+    if (phi[0] == 0.0 && phi[1] == 0.0 && phi[2] == 0.0 && e[0] == 0.0 && e[1] == 0.0 && e[2] == 0.0 &&
+        c->baseline_error == 0.0) {
+        return; /* untouched, so the plain simulator's pixels stay bit for bit */
+    }
+    u[0] = u[1] = u[2] = 0.0;
+    u[3] = phi[0];
+    u[4] = phi[1];
+    u[5] = phi[2];
+    vl_sim_integrate(R, t, u, 1.0); /* R = exp(hat(phi)) */
+    for (i = 0; i < 3; ++i) {
+        for (j = 0; j < 3; ++j) {
+            out->cam_T_imu[4 * i + j] = R[3 * i] * T[j] + R[3 * i + 1] * T[4 + j] + R[3 * i + 2] * T[8 + j];
+        }
+        out->cam_T_imu[4 * i + 3] = R[3 * i] * T[3] + R[3 * i + 1] * T[7] + R[3 * i + 2] * T[11] + e[i];
+    }
+    out->baseline = c->calibration.baseline * (1.0 + c->baseline_error);
+}
+
 int vl_sim_init(vl_sim_t *sim, const vl_sim_config_t *cfg)
 {
     vl_sim_pose_t *p0;
@@ -399,6 +518,10 @@ int vl_sim_init(vl_sim_t *sim, const vl_sim_config_t *cfg)
     rng_seed(&sim->rng_map, cfg->seed, 2);
     rng_seed(&sim->rng_track, cfg->seed, 3);
     rng_seed(&sim->rng_noise, cfg->seed ^ (cfg->noise_seed * 0xA0761D6478BD642FULL), 4 + cfg->noise_seed);
+    /* Tags far from 4 + noise_seed for any practical noise_seed, so no stream coincides. */
+    rng_seed(&sim->rng_event, cfg->seed, UINT64_C(0x5EED000000000005));
+    rng_seed(&sim->rng_place, cfg->seed, UINT64_C(0x5EED000000000006));
+    perturbed_calibration(cfg, &sim->obs_calib);
     for (i = 0; i < 8; ++i) {
         sim->phase[i] = VL_SIM_TWO_PI * rng_uniform(&sim->rng_path);
     }
@@ -410,12 +533,17 @@ int vl_sim_init(vl_sim_t *sim, const vl_sim_config_t *cfg)
     return 0;
 }
 
+/** Farthest depth a far point is observable at, m. */
+#define VL_SIM_FAR_DEPTH 1e4
+
 /** True [u_left, v, u_right, depth] of a world point seen from a pose; 1 when observable. */
-static int project(const vl_sim_t *sim, const vl_sim_pose_t *pose, const double x[3], double px[4])
+static int project(const vl_sim_t *sim, const vl_sim_pose_t *pose, const double x[3], int far, double px[4])
 {
     const vl_sim_config_t *c = &sim->cfg;
-    const double *T = c->calibration.cam_T_imu;
+    const vl_calibration_t *cal = &sim->obs_calib;
+    const double *T = cal->cam_T_imu;
     const double d[3] = {x[0] - pose->p[0], x[1] - pose->p[1], x[2] - pose->p[2]};
+    const double max_depth = far ? VL_SIM_FAR_DEPTH : c->max_depth;
     double b[3], cam[3];
     double lo_u, hi_u, lo_v, hi_v;
     int i;
@@ -426,12 +554,12 @@ static int project(const vl_sim_t *sim, const vl_sim_pose_t *pose, const double 
     for (i = 0; i < 3; ++i) {
         cam[i] = T[4 * i] * b[0] + T[4 * i + 1] * b[1] + T[4 * i + 2] * b[2] + T[4 * i + 3];
     }
-    if (!(cam[2] > c->min_depth && cam[2] < c->max_depth)) {
+    if (!(cam[2] > c->min_depth && cam[2] < max_depth)) {
         return 0;
     }
-    px[0] = c->calibration.fx * cam[0] / cam[2] + c->calibration.cx;
-    px[1] = c->calibration.fy * cam[1] / cam[2] + c->calibration.cy;
-    px[2] = px[0] - c->calibration.fx * c->calibration.baseline / cam[2];
+    px[0] = cal->fx * cam[0] / cam[2] + cal->cx;
+    px[1] = cal->fy * cam[1] / cam[2] + cal->cy;
+    px[2] = px[0] - cal->fx * cal->baseline / cam[2];
     px[3] = cam[2];
     lo_u = c->border_margin;
     hi_u = c->image_width - 1.0 - c->border_margin;
@@ -439,6 +567,32 @@ static int project(const vl_sim_t *sim, const vl_sim_pose_t *pose, const double 
     hi_v = c->image_height - 1.0 - c->border_margin;
     return px[0] >= lo_u && px[0] <= hi_u && px[2] >= lo_u && px[2] <= hi_u && px[1] >= lo_v &&
            px[1] <= hi_v;
+}
+
+/** Where the current track of a point sees it at time utime (moving points move, lost motion shifts). */
+static void point_position(const vl_sim_point_t *pt, int64_t utime, double y[3])
+{
+    int i;
+    memcpy(y, pt->x, 3 * sizeof(double));
+    if (pt->moving) {
+        const double dt = (double)(utime - pt->t0) * 1e-6;
+        for (i = 0; i < 3; ++i) {
+            y[i] += pt->v[i] * dt;
+        }
+    }
+    if (pt->shifted) {
+        for (i = 0; i < 3; ++i) {
+            y[i] += pt->shift[i];
+        }
+    }
+}
+
+/** project() of a point's current track position. */
+static int project_point(const vl_sim_t *sim, const vl_sim_pose_t *pose, const vl_sim_point_t *pt, double px[4])
+{
+    double y[3];
+    point_position(pt, pose->utime, y);
+    return project(sim, pose, y, pt->far, px);
 }
 
 /** A noisy pixel inside [0, hi]: out-of-image draws are redrawn so observations stay in the image. */
@@ -468,12 +622,113 @@ static uint32_t draw_track_length(vl_sim_t *sim)
     return c->track_length_min + (uint32_t)extra;
 }
 
+/** round(fraction * max_observations), at least 1. */
+static uint32_t share_of_frame(const vl_sim_config_t *c, double fraction)
+{
+    const double n = floor(fraction * (double)c->max_observations + 0.5);
+    return n < 1.0 ? 1u : (uint32_t)n;
+}
+
+/**
+ * Hands the id of observed point cand_point[slot] to another visible untracked point within
+ * reassoc_radius px of it (uniformly among them); the old point's track ends. 1 when handed over.
+ */
+static int reassociate(vl_sim_t *sim, const vl_sim_pose_t *pose, uint32_t slot)
+{
+    const double r2 = sim->cfg.reassoc_radius * sim->cfg.reassoc_radius;
+    vl_sim_point_t *src = &sim->points[sim->cand_point[slot]];
+    uint32_t i, eligible = 0, pick;
+    double at[4], px[4];
+    int pass;
+
+    if (!project_point(sim, pose, src, at)) {
+        return 0;
+    }
+    /* Two passes (count, then take the pick-th) keep it allocation-free. */
+    pick = 0;
+    for (pass = 0; pass < 2; ++pass) {
+        uint32_t seen = 0;
+        for (i = 0; i < sim->num_points; ++i) {
+            vl_sim_point_t *pt = &sim->points[i];
+            double du, dv;
+            if (pt->track_id >= 0 || !project_point(sim, pose, pt, px)) {
+                continue;
+            }
+            du = px[0] - at[0];
+            dv = px[1] - at[1];
+            if (du * du + dv * dv > r2) {
+                continue;
+            }
+            if (pass == 1 && seen == pick) {
+                pt->track_id = src->track_id;
+                pt->remaining = src->remaining;
+                pt->shifted = 0;
+                memset(pt->shift, 0, sizeof(pt->shift));
+                src->track_id = -1;
+                src->remaining = 0;
+                sim->cand_point[slot] = i;
+                ++sim->counts.reassociations;
+                return 1;
+            }
+            ++seen;
+        }
+        if (pass == 0) {
+            eligible = seen;
+            if (eligible == 0) {
+                return 0;
+            }
+            pick = (uint32_t)(rng_uniform(&sim->rng_event) * (double)eligible);
+            if (pick >= eligible) {
+                pick = eligible - 1;
+            }
+        }
+    }
+    return 0;
+}
+
+/** Re-associates a share of the n_cont continued tracks of this frame (a frame chosen by the caller). */
+static void reassociate_frame(vl_sim_t *sim, const vl_sim_pose_t *pose, uint32_t n_cont)
+{
+    uint32_t i, chosen = 0;
+    if (n_cont == 0) {
+        return;
+    }
+    for (i = 0; i < n_cont; ++i) {
+        if (rng_uniform(&sim->rng_event) < sim->cfg.reassoc_fraction) {
+            chosen += (uint32_t)reassociate(sim, pose, i);
+        }
+    }
+    if (chosen == 0) {
+        uint32_t slot = (uint32_t)(rng_uniform(&sim->rng_event) * (double)n_cont);
+        (void)reassociate(sim, pose, slot < n_cont ? slot : n_cont - 1);
+    }
+}
+
+/** Moves what a track sees by T(k+1) T(k)^-1, so it shows pose k at step k + 1 (motion lost). */
+static void lose_one_step(vl_sim_point_t *pt, const vl_sim_pose_t *k0, const vl_sim_pose_t *k1)
+{
+    double y[3], d[3], b[3];
+    int i;
+    point_position(pt, k0->utime, y);
+    for (i = 0; i < 3; ++i) {
+        d[i] = y[i] - k0->p[i];
+    }
+    for (i = 0; i < 3; ++i) {
+        b[i] = k0->R[i] * d[0] + k0->R[3 + i] * d[1] + k0->R[6 + i] * d[2];
+    }
+    for (i = 0; i < 3; ++i) {
+        pt->shift[i] += k1->R[3 * i] * b[0] + k1->R[3 * i + 1] * b[1] + k1->R[3 * i + 2] * b[2] + k1->p[i] - y[i];
+    }
+    pt->shifted = 1;
+}
+
 int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
                 double true_R[9], double true_p[3])
 {
     const vl_sim_config_t *c;
     const vl_sim_pose_t *pose;
-    uint32_t n_obs = 0, i;
+    uint32_t n_obs = 0, n_cont, i, new_cap;
+    int stale = 0, may_detect = 1;
     double px[4];
 
     if (sim == NULL) {
@@ -502,18 +757,37 @@ int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
         }
     }
 
-    /* Pass 1: continue live tracks (in slot order) while they stay visible and young. */
+    if (sim->step > 0) {
+        if (c->stale_probability > 0.0 && rng_uniform(&sim->rng_event) < c->stale_probability) {
+            stale = 1;
+        }
+        if (c->detect_below_fraction > 0.0) {
+            /* Not twice in a row: the real stale frames stand alone (at least 2 frames apart). */
+            if (sim->last_count < share_of_frame(c, c->detect_below_fraction) && !sim->last_stale) {
+                stale = 1;
+            }
+            may_detect = stale;
+        }
+    }
+    new_cap = c->detect_new_fraction > 0.0 ? share_of_frame(c, c->detect_new_fraction) : VL_MAX_FRAME_FEATURES;
+
+    /* Pass 1: continue live tracks (in slot order) while they stay visible and young. A stale
+       frame continues every one of them as it was. */
     for (i = 0; i < sim->num_points; ++i) {
         vl_sim_point_t *pt = &sim->points[i];
         if (pt->track_id < 0) {
             continue;
         }
-        if (pt->remaining > 0 && n_obs < c->max_observations && project(sim, pose, pt->x, px)) {
+        if (stale) {
+            sim->cand_point[n_obs++] = i;
+        } else if (pt->remaining > 0 && n_obs < c->max_observations && project_point(sim, pose, pt, px)) {
             --pt->remaining;
             sim->cand_point[n_obs++] = i;
         } else {
             pt->track_id = -1;
             pt->remaining = 0;
+            pt->shifted = 0;
+            memset(pt->shift, 0, sizeof(pt->shift));
         }
     }
     /* Ids are issued in order, so sorting the continued tracks by id gives an ascending frame. */
@@ -526,11 +800,15 @@ int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
         }
         sim->cand_point[j] = v;
     }
+    n_cont = n_obs;
+    if (!stale && c->reassoc_probability > 0.0 && rng_uniform(&sim->rng_event) < c->reassoc_probability) {
+        reassociate_frame(sim, pose, n_cont);
+    }
 
     /* Pass 2: start new tracks on visible untracked points. */
-    for (i = 0; i < sim->num_points && n_obs < c->max_observations; ++i) {
+    for (i = 0; may_detect && i < sim->num_points && n_obs < c->max_observations && n_obs - n_cont < new_cap; ++i) {
         vl_sim_point_t *pt = &sim->points[i];
-        if (pt->track_id >= 0 || !project(sim, pose, pt->x, px)) {
+        if (pt->track_id >= 0 || !project_point(sim, pose, pt, px)) {
             continue; /* continued this frame, or not visible */
         }
         if (rng_uniform(&sim->rng_track) >= c->detect_probability) {
@@ -538,7 +816,9 @@ int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
         }
         pt->track_id = sim->next_track_id++;
         pt->remaining = draw_track_length(sim) - 1;
-        memcpy(sim->track_x[(uint32_t)pt->track_id % VL_SIM_MAX_TRACKS], pt->x, sizeof(pt->x));
+        pt->shifted = 0; /* a new track sees the point where it is */
+        memset(pt->shift, 0, sizeof(pt->shift));
+        point_position(pt, pose->utime, sim->track_x[(uint32_t)pt->track_id % VL_SIM_MAX_TRACKS]);
         sim->cand_point[n_obs++] = i;
     }
 
@@ -562,26 +842,53 @@ int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
             memcpy(imu->angular_velocity, ang, sizeof(ang));
         }
     }
+    if (stale) {
+        /* Repeat the last frame's observations of the continued tracks. Both lists ascend by id;
+           a track whose point slot was recycled since is missing from cand_point. */
+        uint32_t r = 0, w;
+        for (w = 0; w < n_cont; ++w) {
+            const int32_t id = sim->points[sim->cand_point[w]].track_id;
+            while (r < sim->last_count && sim->last_obs[r].id < id) {
+                ++r;
+            }
+            sim->last_obs[w] = sim->last_obs[r]; /* r >= w: reading ahead of the writes */
+            ++r;
+        }
+    }
+    for (i = stale ? n_cont : 0; i < n_obs; ++i) {
+        const vl_sim_point_t *pt = &sim->points[sim->cand_point[i]];
+        const double hu = c->image_width - 1.0, hv = c->image_height - 1.0;
+        vl_stereo_obs_t *o = &sim->last_obs[i];
+        (void)project_point(sim, pose, pt, px);
+        o->id = pt->track_id;
+        o->u_left = noisy_pixel(sim, px[0], hu);
+        o->v_left = noisy_pixel(sim, px[1], hv);
+        o->u_right = noisy_pixel(sim, px[2], hu);
+        o->v_right = noisy_pixel(sim, px[1], hv);
+        if (c->mismatch_probability > 0.0 && i < n_cont &&
+            rng_uniform(&sim->rng_event) < c->mismatch_probability) {
+            /* Another location's pixels: anywhere in the image, a disparity of 1 to 40 px. */
+            const double disp = 1.0 + 39.0 * rng_uniform(&sim->rng_event);
+            o->u_left = hu * rng_uniform(&sim->rng_event);
+            o->v_left = hv * rng_uniform(&sim->rng_event);
+            o->u_right = o->u_left > disp ? o->u_left - disp : 0.0;
+            o->v_right = o->v_left;
+            ++sim->counts.mismatches;
+        }
+    }
+    if (stale) {
+        const vl_sim_pose_t *next = ring_at(sim, sim->step + 1);
+        for (i = 0; i < n_cont; ++i) {
+            lose_one_step(&sim->points[sim->cand_point[i]], pose, next);
+        }
+        ++sim->counts.stale_frames;
+    }
+    sim->last_count = n_obs;
+    sim->last_stale = (uint8_t)stale;
     if (frame != NULL) {
         frame->utime = pose->utime;
         frame->count = n_obs;
-    }
-    for (i = 0; i < n_obs; ++i) {
-        const vl_sim_point_t *pt = &sim->points[sim->cand_point[i]];
-        const double hu = c->image_width - 1.0, hv = c->image_height - 1.0;
-        double ul, vl, ur, vr;
-        (void)project(sim, pose, pt->x, px);
-        ul = noisy_pixel(sim, px[0], hu);
-        vl = noisy_pixel(sim, px[1], hv);
-        ur = noisy_pixel(sim, px[2], hu);
-        vr = noisy_pixel(sim, px[1], hv);
-        if (frame != NULL) {
-            frame->obs[i].id = pt->track_id;
-            frame->obs[i].u_left = ul;
-            frame->obs[i].v_left = vl;
-            frame->obs[i].u_right = ur;
-            frame->obs[i].v_right = vr;
-        }
+        memcpy(frame->obs, sim->last_obs, n_obs * sizeof(sim->last_obs[0]));
     }
     if (true_R != NULL) {
         memcpy(true_R, pose->R, sizeof(pose->R));
@@ -593,6 +900,18 @@ int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
     sim->vehicle_distance = pose->s;
     ++sim->step;
     return 0;
+}
+
+void vl_sim_counts(const vl_sim_t *sim, vl_sim_counts_t *counts)
+{
+    if (counts == NULL) {
+        return;
+    }
+    if (sim == NULL) {
+        memset(counts, 0, sizeof(*counts));
+        return;
+    }
+    *counts = sim->counts;
 }
 
 void vl_sim_calibration(const vl_sim_t *sim, vl_calibration_t *calib)

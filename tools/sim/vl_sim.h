@@ -30,8 +30,42 @@
  * and ends early when its point leaves the view or the frame is full. An ended
  * id never appears again; the same point may later get a new id.
  *
+ * Realistic conditions (all off by default; vl_sim_config_realistic sets the
+ * rates measured on the seed drives by tools/sim/track_stats.py):
+ * - Stale frames. A stale frame k repeats the previous frame's observations of
+ *   every live track exactly (same ids, same pixels), and none of them ends
+ *   there; new tracks may start on it, on time. Each track that lives through
+ *   it then loses one step of motion: from frame k + 1 on it shows its point
+ *   as if the camera were still at pose k (its point is moved by
+ *   T(k+1) T(k)^-1, world-from-IMU, for the rest of the track), and moves on
+ *   time after that. The real data shows exactly this (tracks carried over a
+ *   stale frame agree with the ground-truth motion k-1 -> k across it, not
+ *   k-1 -> k+1, and with k+1 -> k+2 after it). A frame is stale with
+ *   probability stale_probability, and, with detect_below_fraction set, on
+ *   every detection frame: the real tracker starts tracks only when fewer than
+ *   about 50 remain, and each of its detection frames is stale.
+ * - Re-associated ids: in a frame chosen with probability reassoc_probability,
+ *   a fraction of the continued tracks hand their id to another visible,
+ *   untracked point at most reassoc_radius px away; the id continues there.
+ * - Moving points: a fraction of the placed points move at a constant world
+ *   velocity, consistent within a track but not with the static world.
+ * - Mismatches: an observation of a continued track is replaced, with
+ *   probability mismatch_probability, by the pixels of a random location.
+ * - Far points: a fraction of the placed points lie far ahead instead, at a
+ *   depth giving a disparity in [far_disparity_min, far_disparity_max]; they
+ *   are observable beyond max_depth.
+ * - Calibration error: observations come from a perturbed cam_T_imu and
+ *   baseline; vl_sim_calibration still returns the nominal calibration.
+ * The decisions draw from two further world streams, seeded from `seed`:
+ * rng_event (stale frames, re-associations, mismatches and the mismatched
+ * pixels) and rng_place (which placed points are far or moving, and how). No
+ * stream is drawn from for a condition that is off, so with every condition
+ * off the outputs are those of the plain simulator, bit for bit. With one on,
+ * the world streams still give the same path and points, and noise_seed still
+ * changes the noise only.
+ *
  * Memory: the caller owns the vl_sim_t (see VL_SIM_* capacities; about
- * 0.8 MB, so prefer static or heap storage over the stack). Nothing
+ * 1.4 MB, so prefer static or heap storage over the stack). Nothing
  * allocates; vl_sim_step does a fixed amount of work per live point.
  */
 #ifndef VISLAM_VL_SIM_H
@@ -97,7 +131,37 @@ typedef struct {
     double angular_noise;   /**< rad/s, std of each angular velocity sample and axis */
     double linear_offset[3];  /**< m/s, constant offset added to the linear velocities */
     double angular_offset[3]; /**< rad/s, constant offset added to the angular velocities */
+
+    /* Realistic conditions (see the file comment); 0 turns each one off. */
+    double stale_probability;     /**< per frame after step 0, that the frame is stale */
+    double detect_below_fraction; /**< of max_observations: when > 0, tracks start only on step 0 and
+                                       on frames after one with fewer observations than this share
+                                       (rounded, at least 1) and that was not stale itself;
+                                       those frames are stale */
+    double detect_new_fraction;   /**< of max_observations: most tracks started per frame (rounded, at
+                                       least 1); 0 = no limit */
+    double reassoc_probability;   /**< per frame, that continued ids are handed to other points */
+    double reassoc_fraction;      /**< share of the continued tracks re-associated in such a frame
+                                       (each with this chance, at least one) */
+    double reassoc_radius;        /**< px, farthest a re-associated id's left pixel jumps */
+    double moving_fraction;       /**< share of placed points that move (constant world velocity) */
+    double moving_speed;          /**< m/s, speed of a moving point (horizontal, random heading) */
+    double mismatch_probability;  /**< per observation of a continued track: pixels of a random location */
+    double far_fraction;          /**< share of placed points put far ahead instead */
+    double far_disparity_min;     /**< px, smallest disparity of a far point (> 0) */
+    double far_disparity_max;     /**< px, largest disparity of a far point */
+    double calib_rotation_error[3];    /**< deg, rotation vector (camera axes) applied to cam_T_imu
+                                            for the observations */
+    double calib_translation_error[3]; /**< m, added to cam_T_imu's translation for the observations */
+    double baseline_error;        /**< relative: observations use baseline * (1 + baseline_error) */
 } vl_sim_config_t;
+
+/** How often the realistic conditions occurred so far. */
+typedef struct {
+    uint64_t stale_frames;   /**< frames that repeated the previous one's observations */
+    uint64_t reassociations; /**< ids handed to another point */
+    uint64_t mismatches;     /**< observations replaced by a random location */
+} vl_sim_counts_t;
 
 /** Random stream state (xoshiro256**, with a cached Box-Muller deviate). */
 typedef struct {
@@ -117,9 +181,15 @@ typedef struct {
 
 /** A world point and the state of its current track. */
 typedef struct {
-    double x[3];        /**< world position, m */
+    double x[3];        /**< world position at time t0, m */
+    double v[3];        /**< m/s, world velocity (moving points only) */
+    double shift[3];    /**< m, displacement the current track sees (motion lost at stale frames) */
+    int64_t t0;         /**< us, time of x (moving points only) */
     int32_t track_id;   /**< current track id, -1 when untracked */
     uint32_t remaining; /**< frames the current track may still be observed */
+    uint8_t far;        /**< 1: placed far, observable beyond max_depth */
+    uint8_t moving;     /**< 1: moves with v */
+    uint8_t shifted;    /**< 1: shift is not zero */
 } vl_sim_point_t;
 
 /** The simulator. Caller-owned; read it only through the functions below. */
@@ -129,6 +199,9 @@ typedef struct {
     vl_sim_rng_t rng_map;    /**< point placement */
     vl_sim_rng_t rng_track;  /**< detections and track lengths */
     vl_sim_rng_t rng_noise;  /**< measurement noise */
+    vl_sim_rng_t rng_event;  /**< stale frames, re-associations, mismatches */
+    vl_sim_rng_t rng_place;  /**< far and moving points */
+    vl_calibration_t obs_calib; /**< the calibration the observations are made with */
 
     double phase[8];         /**< rad, phases of the wobble terms */
 
@@ -148,10 +221,24 @@ typedef struct {
 
     vl_imu_sample_t last_true_imu; /**< noise-free velocities of the last step */
     uint32_t cand_point[VL_MAX_FRAME_FEATURES]; /**< scratch: points observed this frame */
+    vl_stereo_obs_t last_obs[VL_MAX_FRAME_FEATURES]; /**< the last frame's observations (stale frames repeat them) */
+    uint32_t last_count;     /**< observations in the last frame */
+    uint8_t last_stale;      /**< 1 when the last frame was stale */
+    vl_sim_counts_t counts;
 } vl_sim_t;
 
 /** Fills the defaults: a 300-step, 10 Hz drive with KITTI-like camera and the real data's noise. */
 void vl_sim_config_default(vl_sim_config_t *cfg);
+
+/**
+ * Sets every realistic condition to the rate measured on the seed drives (tools/sim/track_stats.py),
+ * max_observations to 95 (the real tracker's 50 + 45 at a detection frame), points_per_meter to 4
+ * (enough points for those detections) and pixel_noise to 0.3 px (the real stereo rows agree to
+ * 0.38 px std); other fields are left as they are. Lower max_observations afterwards for sparser drives: the detection threshold
+ * and the tracks per detection scale with it. The calibration error is a small guess (the data
+ * cannot show it), not a measurement.
+ */
+void vl_sim_config_realistic(vl_sim_config_t *cfg);
 
 /**
  * Checks the configuration and starts the scenario at step 0.
@@ -170,11 +257,15 @@ int vl_sim_init(vl_sim_t *sim, const vl_sim_config_t *cfg);
 int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
                 double true_R[9], double true_p[3]);
 
-/** The stereo rig calibration in use. */
+/** The nominal stereo rig calibration (what the log carries; the observations may use a perturbed one). */
 void vl_sim_calibration(const vl_sim_t *sim, vl_calibration_t *calib);
 
+/** How often each realistic condition occurred so far (zeros when sim is NULL). */
+void vl_sim_counts(const vl_sim_t *sim, vl_sim_counts_t *counts);
+
 /**
- * True world position of a track id.
+ * True world position of a track id: its point's position at the track's first frame (a
+ * re-associated id keeps the first point's; a moving point moves on).
  * @return 0, or -1 when the id was never issued or is older than the last VL_SIM_MAX_TRACKS ids.
  */
 int vl_sim_landmark(const vl_sim_t *sim, int32_t id, double position[3]);
