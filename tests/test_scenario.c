@@ -140,11 +140,18 @@ static void run(const vl_sim_config_t *sc, const vl_config_t *cfg_in, run_result
     res->rms_position_error = sqrt(sq / (double)steps);
 }
 
-void test_slam_is_consistent_average_nees_within_chi_square_bounds(void)
+/*
+ * Average NEES over NEES_RUNS Monte-Carlo runs of one drive (noise seeds differ),
+ * checked against its two-sided 99% chi-square interval: on average over the
+ * steps and at 90% of the steps. density scales the simulator's points per metre,
+ * velocity_scale its velocity noise (the estimator is told the truth).
+ */
+static void check_nees(const char *name, double density, double velocity_scale)
 {
     static run_result_t res;
     static double anees[NEES_STEPS];
     memset(anees, 0, sizeof(anees));
+    uint64_t observations = 0;
     for (uint64_t r = 0; r < NEES_RUNS; ++r) {
         vl_sim_config_t sc;
         vl_config_t cfg;
@@ -152,9 +159,15 @@ void test_slam_is_consistent_average_nees_within_chi_square_bounds(void)
          * 1 px, points under ~10 px of disparity have strongly skewed depth and the
          * filter turns optimistic: see the README's limits. */
         scenario(100 + r, NEES_STEPS, 0.3, &sc, &cfg);
+        sc.points_per_meter *= density;
+        sc.linear_noise *= velocity_scale;
+        sc.angular_noise *= velocity_scale;
+        cfg.linear_velocity_noise = sc.linear_noise;
+        cfg.angular_velocity_noise = sc.angular_noise;
         /* No outliers in the simulation: plain EKF, so nothing but the model is tested. */
         cfg.gate_chi2 = 0.0;
         run(&sc, &cfg, &res);
+        observations += vl_get_counters(&est)->observations_received;
         for (int k = NEES_SKIP; k < NEES_STEPS; ++k) {
             TEST_ASSERT_TRUE(res.nees_sum[k] >= 0.0); /* the covariance stayed positive definite */
             anees[k] += res.nees_sum[k] / NEES_RUNS;
@@ -170,13 +183,34 @@ void test_slam_is_consistent_average_nees_within_chi_square_bounds(void)
         inside += (anees[k] >= lo && anees[k] <= hi);
     }
     mean /= (double)(NEES_STEPS - NEES_SKIP);
-    char msg[160];
-    snprintf(msg, sizeof(msg), "average NEES %.3f (6 expected, bounds [%.2f, %.2f]), %u of %d steps inside", mean,
-             lo, hi, (unsigned)inside, NEES_STEPS - NEES_SKIP);
+    char msg[200];
+    snprintf(msg, sizeof(msg), "%s (%.1f observations per frame): average NEES %.3f (6 expected, bounds [%.2f, %.2f]), "
+             "%u of %d steps inside", name, (double)observations / (NEES_RUNS * NEES_STEPS), mean, lo, hi,
+             (unsigned)inside, NEES_STEPS - NEES_SKIP);
     printf("%s\n", msg);
     TEST_ASSERT_TRUE_MESSAGE(mean >= lo && mean <= hi, msg);
     /* and it holds over the run, not just on average */
     TEST_ASSERT_TRUE_MESSAGE(inside >= (uint32_t)(0.9 * (NEES_STEPS - NEES_SKIP)), msg);
+}
+
+void test_slam_is_consistent_average_nees_within_chi_square_bounds(void)
+{
+    check_nees("dense", 1.0, 1.0);
+}
+
+void test_slam_is_consistent_on_a_sparse_drive(void)
+{
+    check_nees("sparse", 0.06, 1.0);
+}
+
+void test_slam_is_consistent_with_noisier_velocities(void)
+{
+    check_nees("velocity noise x3", 1.0, 3.0);
+}
+
+void test_slam_is_consistent_sparse_with_clean_velocities(void)
+{
+    check_nees("sparse, velocity noise x0.1", 0.06, 0.1);
 }
 
 void test_slam_beats_dead_reckoning(void)
@@ -288,6 +322,9 @@ int main(void)
 {
     UNITY_BEGIN();
     RUN_TEST(test_slam_is_consistent_average_nees_within_chi_square_bounds);
+    RUN_TEST(test_slam_is_consistent_on_a_sparse_drive);
+    RUN_TEST(test_slam_is_consistent_with_noisier_velocities);
+    RUN_TEST(test_slam_is_consistent_sparse_with_clean_velocities);
     RUN_TEST(test_slam_beats_dead_reckoning);
     RUN_TEST(test_window_never_exceeds_capacity_on_a_drive);
     RUN_TEST(test_replay_is_bit_identical);
