@@ -248,67 +248,88 @@ ini_value() { # ini_value SECTION KEY: the default configuration's value
     /^\[/ { cur = $1 } cur == s && $1 == k && $2 == "=" { print $3; exit }'
 }
 section_sweep() {
-  begin_section sweep "2. Noise robustness and ablations (0027, ATE)"
+  begin_section sweep "2. Noise robustness and ablations (0027 and clean-velocity 0027, ATE)"
   need_data "the sweep runs on 0027" || { end_section; return; }
   [ -f "$GT07" ] || { say "SKIPPED: no ground truth at $GT07"; end_section; return; }
-  local d="$OUT/sweep" log
-  mkdir -p "$d"
+  local d="$OUT/sweep" log clean
+  mkdir -p "$d/logs"
   : >"$d/runs.log"
   log=$(logfor 0027) || { end_section; return; }
-  local lv av px
+  clean="$d/logs/0027_clean.lcmlog"
+  cond_log "$d" 0027_clean "$DATA/0027.npz" --velocities clean --gt "$GT07" || clean=""
+  local lv av px f
   lv=$(ini_value noise linear_velocity)
   av=$(ini_value noise angular_velocity)
   px=$(ini_value noise pixel)
   mul() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.6g", a * b }'; }
-  # name|section|key=value;key=value (noise keys scaled from the defaults)
-  local sweeps=("default|" 
-    "lv_x0.5|noise|linear_velocity=$(mul "$lv" 0.5)"
-    "lv_x2|noise|linear_velocity=$(mul "$lv" 2)"
-    "av_x0.5|noise|angular_velocity=$(mul "$av" 0.5)"
-    "av_x2|noise|angular_velocity=$(mul "$av" 2)"
-    "px_x0.5|noise|pixel=$(mul "$px" 0.5)"
-    "px_x2|noise|pixel=$(mul "$px" 2)"
-    "all_x0.5|noise|linear_velocity=$(mul "$lv" 0.5);angular_velocity=$(mul "$av" 0.5);pixel=$(mul "$px" 0.5)"
-    "all_x2|noise|linear_velocity=$(mul "$lv" 2);angular_velocity=$(mul "$av" 2);pixel=$(mul "$px" 2)")
-  local ablations=("no_offsets|estimator|estimate_input_offsets=false"
-    "no_ransac|outliers|ransac_hypotheses=0"
-    "no_restarts|outliers|max_broken_fraction=1.0"
-    "plain_ekf|outliers|gate_chi2=0"
-    "track_len_1|landmarks|min_track_length=1")
-  # the update's observation cap, where this build has it (0: every inlier in one update)
-  [ -n "$(ini_value estimator max_update_observations)" ] &&
-    ablations+=("all_obs|estimator|max_update_observations=0")
-  run_list() { # run_list ROWS ENTRY...
-    local rows=$1 e name sec kvs settings kv
-    shift
+  # name|section.key=value;section.key=value (noise values scaled from the defaults)
+  local sweeps=("default|")
+  for f in 0.1 0.3 3 10; do
+    sweeps+=("lv_x$f|noise.linear_velocity=$(mul "$lv" "$f")"
+      "av_x$f|noise.angular_velocity=$(mul "$av" "$f")"
+      "px_x$f|noise.pixel=$(mul "$px" "$f")")
+  done
+  local fixed=() e kvs
+  for e in "${sweeps[@]}"; do
+    kvs=${e#*|}
+    fixed+=("fixed_${e%%|*}|estimator.adaptive_noise=false${kvs:+;$kvs}")
+  done
+  local ablations=("no_adaptation|estimator.adaptive_noise=false"
+    "no_offsets|estimator.estimate_input_offsets=false"
+    "no_ransac|outliers.ransac_hypotheses=0"
+    "no_restarts|outliers.max_broken_fraction=1.0"
+    "plain_ekf|outliers.gate_chi2=0"
+    "track_len_1|landmarks.min_track_length=1"
+    "all_obs|estimator.max_update_observations=0")
+  run_list() { # run_list ROWS LOG DATA-LABEL ENTRY...
+    local rows=$1 runlog=$2 label=$3 name kv sec key settings
+    shift 3
     : >"$rows"
     for e in "$@"; do
-      IFS='|' read -r name sec kvs <<<"$e"
-      if [ -z "$sec" ]; then
-        ate_run "$d" "$name" "$log" "$GT07" "$DATA/0027.npz" "$rows" "$name" 0027 "(defaults)" --
+      IFS='|' read -r name kvs <<<"$e"
+      if [ -z "$kvs" ]; then
+        ate_run "$d" "${label}_$name" "$runlog" "$GT07" "$DATA/0027.npz" "$rows" "$name" "$label" "(defaults)" --
         continue
       fi
-      { echo "; tools/bench.sh sweep: $name (on top of the defaults)"; echo "[$sec]"; } >"$d/$name.ini"
+      echo "; tools/bench.sh sweep: $name (on top of the defaults)" >"$d/$name.ini"
       settings=""
       IFS=';' read -r -a kvarr <<<"$kvs"
       for kv in "${kvarr[@]}"; do
-        echo "${kv%%=*} = ${kv#*=}" >>"$d/$name.ini"
-        settings+="${settings:+, }${kv%%=*} = ${kv#*=}"
+        sec=${kv%%.*}
+        key=${kv#*.}
+        printf '[%s]\n%s = %s\n' "$sec" "${key%%=*}" "${key#*=}" >>"$d/$name.ini"
+        settings+="${settings:+, }[$sec] ${key%%=*} = ${key#*=}"
       done
-      ate_run "$d" "$name" "$log" "$GT07" "$DATA/0027.npz" "$rows" "$name" 0027 "[$sec] $settings" -- --config "$d/$name.ini"
+      ate_run "$d" "${label}_$name" "$runlog" "$GT07" "$DATA/0027.npz" "$rows" "$name" "$label" "$settings" \
+        -- --config "$d/$name.ini"
     done
   }
-  say "Noise standard deviations of the filter, one at a time x0.5 and x2, then all three together"
-  say "(defaults: linear_velocity $(mul "$lv" 1) m/s, angular_velocity $(mul "$av" 1) rad/s, pixel $(mul "$px" 1) px)."
-  say "INI files: $d/*.ini, each on top of the defaults (vislam-run --config)."
+  say "Each noise standard deviation of the filter x0.1, x0.3, x3 and x10, one at a time (defaults:"
+  say "linear_velocity $(mul "$lv" 1) m/s, angular_velocity $(mul "$av" 1) rad/s, pixel $(mul "$px" 1) px), with the"
+  say "noise adapted online (the default) and fixed (adaptive_noise = false), on 0027 as given and on"
+  say "0027 with clean velocities (derived from the ground truth, tools/conditions; dead reckoning is exact"
+  say "there). INI files: $d/*.ini, each on top of the defaults (vislam-run --config)."
+  local data_label data_log
+  for data_label in 0027 0027_clean; do
+    data_log=$log
+    [ "$data_label" = 0027_clean ] && data_log=$clean
+    [ -n "$data_log" ] || { say "SKIPPED: $data_label (no log)"; continue; }
+    say ""
+    say "$data_label, noise adapted online:"
+    say ""
+    run_list "$d/noise_$data_label.tsv" "$data_log" "$data_label" "${sweeps[@]}"
+    table ate "$d/noise_$data_label.tsv"
+    say ""
+    say "$data_label, noise fixed at the configured values:"
+    say ""
+    run_list "$d/fixed_$data_label.tsv" "$data_log" "$data_label" "${fixed[@]}"
+    table ate "$d/fixed_$data_label.tsv"
+  done
   say ""
-  run_list "$d/noise.tsv" "${sweeps[@]}"
-  table ate "$d/noise.tsv"
+  say "Ablations on 0027 (one setting changed from the defaults):"
   say ""
-  say "Ablations (one setting changed from the defaults):"
-  say ""
-  run_list "$d/ablations.tsv" "${ablations[@]}"
-  { head -n 1 "$d/noise.tsv"; cat "$d/ablations.tsv"; } >"$d/ablations_all.tsv" # the default row first
+  run_list "$d/ablations.tsv" "$log" 0027 "${ablations[@]}"
+  { head -n 1 "$d/noise_0027.tsv"; cat "$d/ablations.tsv"; } >"$d/ablations_all.tsv" # the default row first
   table ate "$d/ablations_all.tsv"
   end_section
 }
