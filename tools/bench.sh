@@ -282,7 +282,7 @@ section_sweep() {
     "track_len_1|landmarks.min_track_length=1"
     "all_obs|estimator.max_update_observations=0")
   run_list() { # run_list ROWS LOG DATA-LABEL ENTRY...
-    local rows=$1 runlog=$2 label=$3 name kv sec key settings
+    local rows=$1 runlog=$2 label=$3 name kvs kv sec key settings
     shift 3
     : >"$rows"
     for e in "$@"; do
