@@ -123,14 +123,20 @@ def build_parser():
     return parser
 
 
-def evaluate_against_gt(est, args):
-    """Associate, align and measure. Returns (results dict, aligned-GT-in-estimate-frame Trajectory)."""
+def _associated_ground_truth(est, args):
+    """The ground truth of args.gt and the estimate/GT index pairs; fewer than 3 pairs is a ToolError."""
     calib = load_calibration(args.calib) if args.calib else None
     gt = read_ground_truth(args.gt, calib, args.gt_format)
     ei, gi, mode = associate(est.times, gt.times, args.associate, args.max_dt)
     if len(ei) < 3:
         raise ToolError(f"only {len(ei)} estimate/GT pairs (association '{mode}', max dt {args.max_dt} s): "
                         "check the time stamps, or use --associate relative|index")
+    return gt, ei, gi, mode
+
+
+def evaluate_against_gt(est, args):
+    """Associate, align and measure. Returns (results dict, aligned-GT-in-estimate-frame Trajectory)."""
+    gt, ei, gi, mode = _associated_ground_truth(est, args)
     est_p = est.poses[ei]
     gt_p = gt.poses[gi]
     stats, err, t_align, scale = ate(est_p[:, :3, 3], gt_p[:, :3, 3], with_scale=args.scale)
@@ -233,12 +239,7 @@ def cmd_consistency(args):
     if np.any(rows < 0):
         raise ToolError(f"{int(np.sum(rows < 0))} of {len(est)} poses of {args.estimate} have no line of the "
                         f"same time in {args.covariance}: use the files of one vislam-run run")
-    calib = load_calibration(args.calib) if args.calib else None
-    gt = read_ground_truth(args.gt, calib, args.gt_format)
-    ei, gi, mode = associate(est.times, gt.times, args.associate, args.max_dt)
-    if len(ei) < 3:
-        raise ToolError(f"only {len(ei)} estimate/GT pairs (association '{mode}', max dt {args.max_dt} s): "
-                        "check the time stamps, or use --associate relative|index")
+    gt, ei, gi, mode = _associated_ground_truth(est, args)
     est_p = est.poses[ei]
     gt_pos = gt.poses[gi, :3, 3]
     if args.align == "se3":

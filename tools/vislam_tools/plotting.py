@@ -57,6 +57,17 @@ def _view_limits(scene, margin_frac=0.08):
     return lo - pad, hi + pad
 
 
+def _save(fig, out_path, dpi):
+    """Lay out, write and close a figure; a write failure is a ToolError."""
+    fig.tight_layout()
+    try:
+        fig.savefig(out_path, dpi=dpi)
+    except OSError as exc:
+        raise ToolError(f"cannot write {out_path}: {exc}") from exc
+    finally:
+        plt.close(fig)
+
+
 def _setup_axes(ax, scene, lo, hi):
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
@@ -87,13 +98,7 @@ def plot_topdown(scene, out_path, dpi=120):
     ax.scatter(scene.slam_xyz[-1, 0], scene.slam_xyz[-1, 1], marker="o", s=60, c="k", label="end", zorder=5)
     _setup_axes(ax, scene, lo, hi)
     ax.legend(loc="best", fontsize=8, markerscale=1.0)
-    fig.tight_layout()
-    try:
-        fig.savefig(out_path, dpi=dpi)
-    except OSError as exc:
-        raise ToolError(f"cannot write {out_path}: {exc}") from exc
-    finally:
-        plt.close(fig)
+    _save(fig, out_path, dpi)
 
 
 def animate_topdown(scene, out_path, max_frames=100, fps=10, dpi=90, hold_frames=None):
@@ -198,13 +203,7 @@ def plot_consistency(times, e_body, sigma, nees, out_path, title="", chi2_95=Non
     ax.legend(loc="upper left", fontsize=8)
     if title:
         axes[0].set_title(title, fontsize=10)
-    fig.tight_layout()
-    try:
-        fig.savefig(out_path, dpi=dpi)
-    except OSError as exc:
-        raise ToolError(f"cannot write {out_path}: {exc}") from exc
-    finally:
-        plt.close(fig)
+    _save(fig, out_path, dpi)
 
 
 # Dead reckoning closer than this to the truth (clean velocities) makes the ratio meaningless.
@@ -289,10 +288,4 @@ def plot_conditions(cells, out_path, dpi=120):
     hm.set_ylabel("tracks kept")
     hm.set_title("ATE of the vislam default (m)", fontsize=10)
     fig.colorbar(im, ax=hm, label="m")
-    fig.tight_layout()
-    try:
-        fig.savefig(out_path, dpi=dpi)
-    except OSError as exc:
-        raise ToolError(f"cannot write {out_path}: {exc}") from exc
-    finally:
-        plt.close(fig)
+    _save(fig, out_path, dpi)
