@@ -790,16 +790,36 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
  * Back to vl_init's state with the same configuration, counters kept. The
  * window's landmarks are dropped, not mapped: after a divergence they are
  * corrupt, and after a new timeline they belong to a world the restart does
- * not share.
+ * not share. keep_clock keeps the time bookkeeping and the held IMU sample, so
+ * the inputs that follow a divergence continue as before; a new timeline (and
+ * vl_reset) starts the clock afresh.
  */
-static void reset_state(vl_estimator_t *e)
+static void reset_state(vl_estimator_t *e, int keep_clock)
 {
-    const vl_config_t cfg = e->cfg;
-    vl_counters_t counters = e->counters;
-    counters.landmarks_discarded += e->num_landmarks;
+    const vl_estimator_t *old = e; /* the fields are copied out before init_state clears them */
+    const vl_config_t cfg = old->cfg;
+    vl_counters_t counters = old->counters;
+    counters.landmarks_discarded += old->num_landmarks;
     counters.resets++;
+    const int have_imu = old->have_imu, have_frame = old->have_frame, imu_silent = old->imu_silent;
+    const int64_t state_utime = old->state_utime, last_imu = old->last_imu_utime;
+    const int64_t last_frame = old->last_frame_utime, clock = old->clock_utime;
+    double held_linear[3], held_angular[3];
+    memcpy(held_linear, old->held_linear, sizeof(held_linear));
+    memcpy(held_angular, old->held_angular, sizeof(held_angular));
     init_state(e, &cfg);
     e->counters = counters;
+    if (keep_clock) {
+        e->have_imu = have_imu;
+        e->have_frame = have_frame;
+        e->imu_silent = imu_silent;
+        e->state_utime = state_utime;
+        e->last_imu_utime = last_imu;
+        e->last_frame_utime = last_frame;
+        e->clock_utime = clock;
+        memcpy(e->held_linear, held_linear, sizeof(held_linear));
+        memcpy(e->held_angular, held_angular, sizeof(held_angular));
+    }
 }
 
 vl_status_t vl_init(vl_estimator_t *e, const vl_config_t *cfg)
@@ -827,7 +847,7 @@ vl_status_t vl_reset(vl_estimator_t *e)
     if (!e->initialized) {
         return VL_ERR_NOT_READY;
     }
-    reset_state(e);
+    reset_state(e, 0);
     return VL_OK;
 }
 
@@ -935,18 +955,26 @@ static vl_status_t guard_divergence(vl_estimator_t *e, int64_t utime, vl_status_
     if (!diverged(e)) {
         return result;
     }
-    reset_state(e);
+    reset_state(e, 1);
     e->counters.divergence_resets++;
     log_msg(e, VL_LOG_ERROR, utime, "estimator diverged; re-initialized with the same configuration");
     return VL_RESET;
 }
 
+/* Euclidean length of a finite 3-vector, scaled so that squaring cannot overflow. */
+static double norm3(const double v[3])
+{
+    const double m = fmax(fabs(v[0]), fmax(fabs(v[1]), fabs(v[2])));
+    if (m == 0.0) {
+        return 0.0;
+    }
+    const double a = v[0] / m, b = v[1] / m, c = v[2] / m;
+    return m * sqrt(a * a + b * b + c * c);
+}
+
 static int imu_plausible(const vl_estimator_t *e, const vl_imu_sample_t *imu)
 {
-    const double *v = imu->linear_velocity, *w = imu->angular_velocity;
-    const double speed = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    const double rate = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
-    return speed <= e->cfg.max_speed && rate <= e->cfg.max_rotation_rate;
+    return norm3(imu->linear_velocity) <= e->cfg.max_speed && norm3(imu->angular_velocity) <= e->cfg.max_rotation_rate;
 }
 
 vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
@@ -983,7 +1011,7 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
                 return st;
             }
             /* The inputs follow a new timeline: restart on it with this sample. */
-            reset_state(e);
+            reset_state(e, 0);
             e->counters.timeline_changes++;
             log_msg(e, VL_LOG_WARN, imu->utime, "inputs follow a new timeline; re-initialized on it");
             result = VL_RESET;

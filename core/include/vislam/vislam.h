@@ -70,12 +70,12 @@ typedef enum {
     VL_OK = 0,                        /**< Done. */
     VL_FRAME_TRUNCATED = 1,           /**< Frame had more than VL_MAX_FRAME_FEATURES observations;
                                            the first ones were used, the rest counted. */
-    VL_RESET = 2,                     /**< The estimator re-initialized in this call (a new timeline,
-                                           or divergence), keeping its configuration, calibration and
-                                           counters: the state is that of vl_init, and the input
-                                           either started the new timeline or was used before the
-                                           divergence was found. Counters timeline_changes and
-                                           divergence_resets say which. */
+    VL_RESET = 2,                     /**< The estimator re-initialized in this call, keeping its
+                                           configuration, calibration and counters: identity pose,
+                                           empty window. On a new timeline (timeline_changes) the input
+                                           is the first IMU sample of the new clock; after divergence
+                                           (divergence_resets) the input was used, the divergence found
+                                           after it, and the clock and held IMU sample are kept. */
     VL_ERR_NULL = -1,                 /**< A required pointer was NULL. */
     VL_ERR_CONFIG = -2,               /**< A configuration value is out of range (see vl_config_check). */
     VL_ERR_NOT_READY = -3,            /**< A frame arrived before the first IMU sample set the clock. */
