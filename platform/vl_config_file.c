@@ -63,6 +63,17 @@ static const key_def_t k_keys[] = {
     {"outliers", "ransac_hypotheses", KEY_UINT32, CFG_OFF(ransac_hypotheses), 0.0, 4096.0, 0, 0},
     {"outliers", "ransac_threshold", KEY_DOUBLE, CFG_OFF(ransac_threshold), 0.0, DBL_MAX, 1, 0},
 
+    {"limits", "max_time_jump", KEY_DOUBLE, CFG_OFF(max_time_jump), 0.0, VL_MAX_TIME_LIMIT, 1, 0},
+    {"limits", "new_timeline_samples", KEY_UINT32, CFG_OFF(new_timeline_samples), 2.0, (double)UINT32_MAX, 0, 0},
+    {"limits", "max_speed", KEY_DOUBLE, CFG_OFF(max_speed), 0.0, DBL_MAX, 1, 0},
+    {"limits", "max_rotation_rate", KEY_DOUBLE, CFG_OFF(max_rotation_rate), 0.0, DBL_MAX, 1, 0},
+    {"limits", "image_width", KEY_DOUBLE, CFG_OFF(image_width), 0.0, DBL_MAX, 0, 0},
+    {"limits", "image_height", KEY_DOUBLE, CFG_OFF(image_height), 0.0, DBL_MAX, 0, 0},
+    {"limits", "image_margin", KEY_DOUBLE, CFG_OFF(image_margin), 0.0, DBL_MAX, 0, 0},
+    {"limits", "max_disparity", KEY_DOUBLE, CFG_OFF(max_disparity), 0.0, DBL_MAX, 1, 0},
+    {"limits", "max_imu_silence", KEY_DOUBLE, CFG_OFF(max_imu_silence), 0.0, VL_MAX_TIME_LIMIT, 1, 0},
+    {"limits", "divergence_frames", KEY_UINT32, CFG_OFF(divergence_frames), 0.0, (double)UINT32_MAX, 0, 0},
+
     {"calibration", "override_log", KEY_OVERRIDE, 0, 0, 0, 0, 0},
     {"calibration", "fx", KEY_DOUBLE, CFG_OFF(calibration.fx), 0.0, DBL_MAX, 1, 1},
     {"calibration", "fy", KEY_DOUBLE, CFG_OFF(calibration.fy), 0.0, DBL_MAX, 1, 1},
@@ -693,6 +704,17 @@ int vl_config_write_ini(FILE *f, const vl_config_t *cfg, int with_calibration)
     fprintf(f, "max_broken_fraction = %.17g\n", cfg->max_broken_fraction);
     fprintf(f, "ransac_hypotheses = %u\n", (unsigned)cfg->ransac_hypotheses);
     fprintf(f, "ransac_threshold = %.17g\n", cfg->ransac_threshold);
+    fprintf(f, "\n[limits]\n");
+    fprintf(f, "max_time_jump = %.17g\n", cfg->max_time_jump);
+    fprintf(f, "new_timeline_samples = %u\n", (unsigned)cfg->new_timeline_samples);
+    fprintf(f, "max_speed = %.17g\n", cfg->max_speed);
+    fprintf(f, "max_rotation_rate = %.17g\n", cfg->max_rotation_rate);
+    fprintf(f, "image_width = %.17g\n", cfg->image_width);
+    fprintf(f, "image_height = %.17g\n", cfg->image_height);
+    fprintf(f, "image_margin = %.17g\n", cfg->image_margin);
+    fprintf(f, "max_disparity = %.17g\n", cfg->max_disparity);
+    fprintf(f, "max_imu_silence = %.17g\n", cfg->max_imu_silence);
+    fprintf(f, "divergence_frames = %u\n", (unsigned)cfg->divergence_frames);
     if (with_calibration) {
         const vl_calibration_t *c = &cfg->calibration;
         fprintf(f, "\n[calibration]\n");

@@ -64,6 +64,16 @@ static void assert_config_equal(const vl_config_t *a, const vl_config_t *b)
     TEST_ASSERT_EQUAL_UINT32(a->max_unseen_frames, b->max_unseen_frames);
     TEST_ASSERT_EQUAL_DOUBLE(a->max_propagation_dt, b->max_propagation_dt);
     TEST_ASSERT_EQUAL_UINT32(a->max_update_observations, b->max_update_observations);
+    TEST_ASSERT_EQUAL_DOUBLE(a->max_time_jump, b->max_time_jump);
+    TEST_ASSERT_EQUAL_UINT32(a->new_timeline_samples, b->new_timeline_samples);
+    TEST_ASSERT_EQUAL_DOUBLE(a->max_speed, b->max_speed);
+    TEST_ASSERT_EQUAL_DOUBLE(a->max_rotation_rate, b->max_rotation_rate);
+    TEST_ASSERT_EQUAL_DOUBLE(a->image_width, b->image_width);
+    TEST_ASSERT_EQUAL_DOUBLE(a->image_height, b->image_height);
+    TEST_ASSERT_EQUAL_DOUBLE(a->image_margin, b->image_margin);
+    TEST_ASSERT_EQUAL_DOUBLE(a->max_disparity, b->max_disparity);
+    TEST_ASSERT_EQUAL_DOUBLE(a->max_imu_silence, b->max_imu_silence);
+    TEST_ASSERT_EQUAL_UINT32(a->divergence_frames, b->divergence_frames);
     TEST_ASSERT_EQUAL_DOUBLE(a->calibration.fx, b->calibration.fx);
     TEST_ASSERT_EQUAL_DOUBLE(a->calibration.fy, b->calibration.fy);
     TEST_ASSERT_EQUAL_DOUBLE(a->calibration.cx, b->calibration.cx);
@@ -125,6 +135,18 @@ static const char *k_full =
     "ransac_hypotheses = 12\n"
     "ransac_threshold = 2.5\n"
     "\n"
+    "[limits]\n"
+    "max_time_jump = 3.5\n"
+    "new_timeline_samples = 7\n"
+    "max_speed = 42\n"
+    "max_rotation_rate = 6.5\n"
+    "image_width = 1241\n"
+    "image_height = 376\n"
+    "image_margin = 8\n"
+    "max_disparity = 250\n"
+    "max_imu_silence = 0.75\n"
+    "divergence_frames = 0\n"
+    "\n"
     "[calibration]\n"
     "override_log = true\n"
     "fx = 721.5\n"
@@ -164,6 +186,16 @@ void test_vl_config_load_ini_full_file_sets_every_key(void)
     TEST_ASSERT_EQUAL_DOUBLE(0.45, cfg.max_broken_fraction);
     TEST_ASSERT_EQUAL_UINT32(12, cfg.ransac_hypotheses);
     TEST_ASSERT_EQUAL_DOUBLE(2.5, cfg.ransac_threshold);
+    TEST_ASSERT_EQUAL_DOUBLE(3.5, cfg.max_time_jump);
+    TEST_ASSERT_EQUAL_UINT32(7, cfg.new_timeline_samples);
+    TEST_ASSERT_EQUAL_DOUBLE(42.0, cfg.max_speed);
+    TEST_ASSERT_EQUAL_DOUBLE(6.5, cfg.max_rotation_rate);
+    TEST_ASSERT_EQUAL_DOUBLE(1241.0, cfg.image_width);
+    TEST_ASSERT_EQUAL_DOUBLE(376.0, cfg.image_height);
+    TEST_ASSERT_EQUAL_DOUBLE(8.0, cfg.image_margin);
+    TEST_ASSERT_EQUAL_DOUBLE(250.0, cfg.max_disparity);
+    TEST_ASSERT_EQUAL_DOUBLE(0.75, cfg.max_imu_silence);
+    TEST_ASSERT_EQUAL_UINT32(0, cfg.divergence_frames);
     TEST_ASSERT_EQUAL_DOUBLE(721.5, cfg.calibration.fx);
     TEST_ASSERT_EQUAL_DOUBLE(721.6, cfg.calibration.fy);
     TEST_ASSERT_EQUAL_DOUBLE(609.5, cfg.calibration.cx);
@@ -174,7 +206,7 @@ void test_vl_config_load_ini_full_file_sets_every_key(void)
     TEST_ASSERT_TRUE(info.has_calibration);
     TEST_ASSERT_TRUE(info.override_log);
     TEST_ASSERT_EQUAL_INT(VL_PRESET_NONE, info.preset);
-    TEST_ASSERT_EQUAL_UINT(27, info.keys_set); /* all but preset */
+    TEST_ASSERT_EQUAL_UINT(37, info.keys_set); /* all but preset */
 }
 
 void test_vl_config_load_ini_example_file_equals_defaults(void)
@@ -265,6 +297,12 @@ void test_vl_config_load_ini_out_of_range_fails(void)
     snprintf(text, sizeof(text), "[landmarks]\nmax_landmarks = %d\n", VL_MAX_LANDMARKS + 1);
     expect_error(text, ":2:", "out of range");
     expect_error("[landmarks]\nmax_unseen_frames = -1\n", ":2:", "max_unseen_frames");
+    expect_error("[limits]\nmax_time_jump = 0\n", ":2:", "max_time_jump");
+    expect_error("[limits]\nmax_time_jump = 2e9\n", ":2:", "max_time_jump");
+    expect_error("[limits]\nnew_timeline_samples = 1\n", ":2:", "new_timeline_samples");
+    expect_error("[limits]\nmax_speed = 0\n", ":2:", "max_speed");
+    expect_error("[limits]\nimage_margin = -1\n", ":2:", "image_margin");
+    expect_error("[limits]\nmax_imu_silence = 0\n", ":2:", "max_imu_silence");
     expect_error("[landmarks]\nmin_disparity = 0\n", ":2:", "min_disparity");
     expect_error("[estimator]\nmax_propagation_dt = 0\n", ":2:", "max_propagation_dt");
     expect_error("[outliers]\nmax_broken_fraction = 1.5\n", ":2:", "max_broken_fraction");

@@ -16,6 +16,8 @@
 #      process total (LCM's receive thread, first sight of each channel) stays bounded.
 #   5. calibration from the config file alone (no VISLAM_CALIB on the wire): the daemon estimates,
 #      and equals vislam-run with the same config.
+#   6. the same log replayed twice into one daemon (issue 7): the second pass is a new timeline,
+#      the daemon re-initializes within a few inputs, says so in VISLAM_STATUS, and tracks again.
 # Exit 77 (CTest skip) when a private network namespace or lcm-logger is unavailable.
 set -uo pipefail
 
@@ -232,6 +234,39 @@ wait_exit "$DAEMON" 10
 check "daemon C exits 0 on SIGTERM" eq "$WAIT_RC" 0
 check "daemon C trajectory has every frame" eq "$(wc -l <"$OUT/c.tum")" "$FRAMES"
 check "daemon C trajectory byte-identical to vislam-run's with the same config" cmp "$OUT/c.tum" "$OUT/c.offline.tum"
+
+# ---- run D: the same log twice into one daemon -------------------------------------------------
+echo "== run D: the log replayed twice into one daemon (a new timeline 20 s back)"
+lcm-logger --lcm-url="$URL" --channel='(VISLAM_POSE|VISLAM_STATUS)' -q -f "$OUT/d.lcmlog" &
+LOGGER=$!
+PIDS+=("$LOGGER")
+sleep 0.5
+"$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/d.tum" --quiet 2>"$OUT/d.daemon.err" &
+DAEMON=$!
+PIDS+=("$DAEMON")
+"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 8 --wait-for VISLAM_STATUS --timeout-ms 5000 \
+  --quiet 2>"$OUT/d1.replay.err"
+check "replay D1 exits 0" eq $? 0
+# The second pass's first inputs are refused (20 s back: a time jump) until they form a timeline:
+# their frames get no pose, so this replay's lockstep times out on them and exits non-zero.
+"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 8 --timeout-ms 300 --quiet 2>"$OUT/d2.replay.err"
+kill -TERM "$DAEMON"
+wait_exit "$DAEMON" 10
+check "daemon D exits 0 on SIGTERM" eq "$WAIT_RC" 0
+sleep 0.3
+kill -INT "$LOGGER"
+wait_exit "$LOGGER" 5
+"$INSPECT" "$OUT/d.lcmlog" >"$OUT/d.inspect"
+D=$OUT/d.inspect
+check "one re-initialization, on a new timeline; the inputs before it refused as time jumps (4)" \
+  eq "$(value "$D" status.last.timeline_changes)/$(value "$D" status.last.resets)/$(value "$D" status.last.divergence_resets)/$(value "$D" status.last.time_jumps)" "1/1/0/4"
+check "a status said TIMELINE_CHANGE (32) and TIME_REFUSED (16)" \
+  test $(($(value "$D" status.health_any) & 48)) -eq 48
+check "tracking again: every frame from the third of the second pass has a trajectory line (200 + 198)" \
+  eq "$(wc -l <"$OUT/d.tum")" 398
+check "every published pose is finite" eq "$(value "$D" pose.all_finite)" 1
+check "the final status is healthy again (0 or overrun)" \
+  test \( "$(value "$D" status.last.health)" = 0 -o "$(value "$D" status.last.health)" = 2 \)
 
 echo "== $((SECONDS - START)) s, $FAILS failure(s)"
 [ "$FAILS" -eq 0 ]

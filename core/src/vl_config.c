@@ -42,6 +42,20 @@ void vl_config_default(vl_config_t *cfg)
     cfg->max_unseen_frames = 0; /* the seed's tracks have no gaps: an unseen track has ended */
     cfg->max_propagation_dt = 0.5;
 
+    /* Robustness limits: far outside anything a clean drive shows (the seed drives:
+     * steps of 0.1 s, at most 16 m/s and 0.8 rad/s, disparities up to 190 px, pixels
+     * up to 30 px beyond 2 cx and 2 cy), so clean data is never refused. */
+    cfg->max_time_jump = 10.0;
+    cfg->new_timeline_samples = 5;   /* at 10 Hz IMU and camera: a new timeline within 0.3 s */
+    cfg->max_speed = 100.0;          /* 360 km/h */
+    cfg->max_rotation_rate = 35.0;   /* 2000 deg/s, a common gyro full scale */
+    cfg->image_width = 0.0;          /* 2 cx */
+    cfg->image_height = 0.0;         /* 2 cy */
+    cfg->image_margin = 64.0;
+    cfg->max_disparity = 400.0;      /* about 1 m away on the KITTI rig (fx b = 380 px m) */
+    cfg->max_imu_silence = 0.5;      /* five missed samples at 10 Hz */
+    cfg->divergence_frames = 20;     /* 2 s at 10 Hz */
+
     memcpy(cfg->calibration.cam_T_imu, identity4, sizeof(identity4));
 }
 
@@ -107,6 +121,17 @@ vl_status_t vl_config_check(const vl_config_t *cfg)
     if (cfg->max_landmarks < 1 || cfg->max_landmarks > VL_MAX_LANDMARKS) {
         return VL_ERR_CONFIG;
     }
+    /* Time limits become int64 microseconds: 1e9 s keeps them far inside the range. */
+    if (!positive_finite(cfg->max_time_jump) || !(cfg->max_time_jump <= VL_MAX_TIME_LIMIT) ||
+        !positive_finite(cfg->max_imu_silence) || !(cfg->max_imu_silence <= VL_MAX_TIME_LIMIT) ||
+        cfg->new_timeline_samples < 2) {
+        return VL_ERR_CONFIG;
+    }
+    if (!positive_finite(cfg->max_speed) || !positive_finite(cfg->max_rotation_rate) ||
+        !non_negative_finite(cfg->image_width) || !non_negative_finite(cfg->image_height) ||
+        !non_negative_finite(cfg->image_margin) || !positive_finite(cfg->max_disparity)) {
+        return VL_ERR_CONFIG;
+    }
     const vl_calibration_t *cal = &cfg->calibration;
     if (!positive_finite(cal->fx) || !positive_finite(cal->fy) || !isfinite(cal->cx) || !isfinite(cal->cy) ||
         !positive_finite(cal->baseline)) {
@@ -158,6 +183,14 @@ const char *vl_status_str(vl_status_t status)
         return "output buffer too small";
     case VL_ERR_MISALIGNED:
         return "estimator not aligned to VL_ESTIMATOR_ALIGN bytes";
+    case VL_RESET:
+        return "estimator re-initialized (new timeline or divergence)";
+    case VL_ERR_TIME_JUMP:
+        return "input time jumps more than max_time_jump from the clock";
+    case VL_ERR_IMPLAUSIBLE:
+        return "IMU sample beyond max_speed or max_rotation_rate";
+    case VL_ERR_IMU_SILENT:
+        return "frame refused: IMU silent longer than max_imu_silence";
     }
     return "unknown status";
 }

@@ -29,6 +29,15 @@ size_t vl_counters_list(const vl_counters_t *c, vl_counter_entry_t out[VL_NUM_CO
     VL_COUNTER(landmarks_evicted);
     VL_COUNTER(numerical_failures);
     VL_COUNTER(time_gaps);
+    VL_COUNTER(time_jumps);
+    VL_COUNTER(timeline_changes);
+    VL_COUNTER(divergence_resets);
+    VL_COUNTER(resets);
+    VL_COUNTER(landmarks_discarded);
+    VL_COUNTER(imu_implausible);
+    VL_COUNTER(observations_implausible);
+    VL_COUNTER(imu_silences);
+    VL_COUNTER(frames_imu_silent);
     VL_COUNTER(window_peak);
 #undef VL_COUNTER
     return n;

@@ -71,6 +71,27 @@ static int all_finite(const double *v, int n)
     return 1;
 }
 
+/*
+ * a - b in microseconds, saturated to the int64 range: input times come from
+ * outside, and INT64_MIN or INT64_MAX must not overflow the subtraction.
+ */
+static int64_t utime_diff(int64_t a, int64_t b)
+{
+    if (b < 0 && a > INT64_MAX + b) {
+        return INT64_MAX;
+    }
+    if (b > 0 && a < INT64_MIN + b) {
+        return INT64_MIN;
+    }
+    return a - b;
+}
+
+/* A configured time limit in microseconds (vl_config_check bounds it by VL_MAX_TIME_LIMIT s). */
+static int64_t limit_us(double seconds)
+{
+    return (int64_t)(seconds * 1e6);
+}
+
 /* ---------------------------------------------------------------- geometry */
 
 /* cam_T_imu as rotation and translation. */
@@ -188,7 +209,7 @@ static void triangulate_world(const vl_estimator_t *e, const double y[3], double
 
 static void propagate_to(vl_estimator_t *e, int64_t utime)
 {
-    const double tau = (double)(utime - e->state_utime) * 1e-6;
+    const double tau = (double)utime_diff(utime, e->state_utime) * 1e-6;
     if (tau <= 0.0) {
         return;
     }
@@ -742,19 +763,9 @@ static uint32_t rescue_outliers(vl_estimator_t *e, const vl_stereo_frame_t *fram
 
 /* ---------------------------------------------------------------- public API */
 
-vl_status_t vl_init(vl_estimator_t *e, const vl_config_t *cfg)
+/* The state vl_init gives: identity pose, empty window, configured noise; counters zero. */
+static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
 {
-    if (e == NULL || cfg == NULL) {
-        return VL_ERR_NULL;
-    }
-    if (((uintptr_t)(const void *)e % VL_ESTIMATOR_ALIGN) != 0) {
-        return VL_ERR_MISALIGNED;
-    }
-    vl_status_t st = vl_config_check(cfg);
-    if (st != VL_OK) {
-        return st;
-    }
-    vl_la_configure();
     memset(e, 0, offsetof(vl_estimator_t, P));
     e->cfg = *cfg;
     static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
@@ -773,7 +784,197 @@ vl_status_t vl_init(vl_estimator_t *e, const vl_config_t *cfg)
     e->angular_velocity_var = cfg->angular_velocity_noise * cfg->angular_velocity_noise;
     e->pixel_var = cfg->pixel_noise * cfg->pixel_noise;
     e->initialized = 1;
+}
+
+/*
+ * Back to vl_init's state with the same configuration, counters kept. The
+ * window's landmarks are dropped, not mapped: after a divergence they are
+ * corrupt, and after a new timeline they belong to a world the restart does
+ * not share. keep_clock keeps the time bookkeeping and the held IMU sample, so
+ * the inputs that follow a divergence continue as before; a new timeline (and
+ * vl_reset) starts the clock afresh.
+ */
+static void reset_state(vl_estimator_t *e, int keep_clock)
+{
+    const vl_estimator_t *old = e; /* the fields are copied out before init_state clears them */
+    const vl_config_t cfg = old->cfg;
+    vl_counters_t counters = old->counters;
+    counters.landmarks_discarded += old->num_landmarks;
+    counters.resets++;
+    const int have_imu = old->have_imu, have_frame = old->have_frame, imu_silent = old->imu_silent;
+    const int64_t state_utime = old->state_utime, last_imu = old->last_imu_utime;
+    const int64_t last_frame = old->last_frame_utime, clock = old->clock_utime;
+    double held_linear[3], held_angular[3];
+    memcpy(held_linear, old->held_linear, sizeof(held_linear));
+    memcpy(held_angular, old->held_angular, sizeof(held_angular));
+    init_state(e, &cfg);
+    e->counters = counters;
+    if (keep_clock) {
+        e->have_imu = have_imu;
+        e->have_frame = have_frame;
+        e->imu_silent = imu_silent;
+        e->state_utime = state_utime;
+        e->last_imu_utime = last_imu;
+        e->last_frame_utime = last_frame;
+        e->clock_utime = clock;
+        memcpy(e->held_linear, held_linear, sizeof(held_linear));
+        memcpy(e->held_angular, held_angular, sizeof(held_angular));
+    }
+}
+
+vl_status_t vl_init(vl_estimator_t *e, const vl_config_t *cfg)
+{
+    if (e == NULL || cfg == NULL) {
+        return VL_ERR_NULL;
+    }
+    if (((uintptr_t)(const void *)e % VL_ESTIMATOR_ALIGN) != 0) {
+        return VL_ERR_MISALIGNED;
+    }
+    vl_status_t st = vl_config_check(cfg);
+    if (st != VL_OK) {
+        return st;
+    }
+    vl_la_configure();
+    init_state(e, cfg);
     return VL_OK;
+}
+
+vl_status_t vl_reset(vl_estimator_t *e)
+{
+    if (e == NULL) {
+        return VL_ERR_NULL;
+    }
+    if (!e->initialized) {
+        return VL_ERR_NOT_READY;
+    }
+    reset_state(e, 0);
+    return VL_OK;
+}
+
+typedef enum { INPUT_IMU, INPUT_FRAME } input_kind_t;
+
+/*
+ * The time policy (the first IMU sample sets the clock without it): an input
+ * farther than max_time_jump from the clock, either way, is a jump; otherwise
+ * each kind must move forward as before.
+ */
+static vl_status_t check_time(const vl_estimator_t *e, input_kind_t kind, int64_t utime)
+{
+    const int64_t limit = limit_us(e->cfg.max_time_jump);
+    const int64_t d = utime_diff(utime, e->clock_utime);
+    if (d > limit || d < -limit) {
+        return VL_ERR_TIME_JUMP;
+    }
+    if (kind == INPUT_IMU) {
+        return (utime <= e->last_imu_utime || utime < e->state_utime) ? VL_ERR_TIME_ORDER : VL_OK;
+    }
+    return (utime < e->state_utime || (e->have_frame && utime <= e->last_frame_utime)) ? VL_ERR_TIME_ORDER : VL_OK;
+}
+
+/* An input passed the time policy: the clock follows it and no new timeline is pending. */
+static void time_passed(vl_estimator_t *e, int64_t utime)
+{
+    if (utime > e->clock_utime) {
+        e->clock_utime = utime;
+    }
+    e->timeline_count = 0;
+}
+
+/*
+ * A time-refused input. Consecutive ones that follow one another (each within
+ * max_time_jump of the previous, each kind strictly forward, so a stuck clock
+ * never qualifies) are a candidate timeline; any input that passes the policy
+ * ends it. Returns nonzero when the candidate has new_timeline_samples inputs.
+ */
+static int note_timeline(vl_estimator_t *e, input_kind_t kind, int64_t utime)
+{
+    int follows = e->timeline_count > 0;
+    if (follows) {
+        const int64_t limit = limit_us(e->cfg.max_time_jump);
+        const int64_t d = utime_diff(utime, e->timeline_last_utime);
+        follows = d <= limit && d >= -limit;
+        if (kind == INPUT_IMU && e->timeline_have_imu && utime <= e->timeline_last_imu_utime) {
+            follows = 0;
+        }
+        if (kind == INPUT_FRAME && e->timeline_have_frame && utime <= e->timeline_last_frame_utime) {
+            follows = 0;
+        }
+    }
+    if (!follows) {
+        e->timeline_count = 0;
+        e->timeline_have_imu = 0;
+        e->timeline_have_frame = 0;
+    }
+    e->timeline_count++;
+    e->timeline_last_utime = utime;
+    if (kind == INPUT_IMU) {
+        e->timeline_have_imu = 1;
+        e->timeline_last_imu_utime = utime;
+    } else {
+        e->timeline_have_frame = 1;
+        e->timeline_last_frame_utime = utime;
+    }
+    return e->timeline_count >= e->cfg.new_timeline_samples;
+}
+
+/*
+ * The divergence guard: a non-finite state, a covariance with a negative or
+ * non-finite diagonal or a core block violating |P_ij| <= sqrt(P_ii P_jj) (a
+ * necessary condition of positive semi-definiteness, cheap enough for every
+ * step), or, in SLAM, divergence_frames failed updates in a row.
+ */
+static int diverged(const vl_estimator_t *e)
+{
+    if (!all_finite(e->R, 9) || !all_finite(e->p, 3) || !all_finite(e->offset_linear, 3) ||
+        !all_finite(e->offset_angular, 3) || !all_finite(e->landmark_state, 3 * (int)e->num_landmarks)) {
+        return 1;
+    }
+    const uint32_t n = vl_state_dim(e);
+    for (uint32_t i = 0; i < n; ++i) {
+        const double d = e->P[(size_t)i * LD + i];
+        if (!(d >= 0.0) || !isfinite(d)) {
+            return 1;
+        }
+    }
+    for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
+        for (uint32_t i = 0; i < j; ++i) {
+            const double pij = e->P[(size_t)j * LD + i];
+            const double bound = e->P[(size_t)i * LD + i] * e->P[(size_t)j * LD + j];
+            if (!isfinite(pij) || pij * pij > bound * (1.0 + 1e-6)) {
+                return 1;
+            }
+        }
+    }
+    return e->cfg.mode == VL_MODE_SLAM && e->cfg.divergence_frames > 0 &&
+           e->failed_frame_run >= e->cfg.divergence_frames;
+}
+
+/* After an input was used: a diverged estimator restarts (VL_RESET), else result stands. */
+static vl_status_t guard_divergence(vl_estimator_t *e, int64_t utime, vl_status_t result)
+{
+    if (!diverged(e)) {
+        return result;
+    }
+    reset_state(e, 1);
+    e->counters.divergence_resets++;
+    log_msg(e, VL_LOG_ERROR, utime, "estimator diverged; re-initialized with the same configuration");
+    return VL_RESET;
+}
+
+/* Euclidean length of a finite 3-vector, scaled so that squaring cannot overflow. */
+static double norm3(const double v[3])
+{
+    const double m = fmax(fabs(v[0]), fmax(fabs(v[1]), fabs(v[2])));
+    if (m == 0.0) {
+        return 0.0;
+    }
+    const double a = v[0] / m, b = v[1] / m, c = v[2] / m;
+    return m * sqrt(a * a + b * b + c * c);
+}
+
+static int imu_plausible(const vl_estimator_t *e, const vl_imu_sample_t *imu)
+{
+    return norm3(imu->linear_velocity) <= e->cfg.max_speed && norm3(imu->angular_velocity) <= e->cfg.max_rotation_rate;
 }
 
 vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
@@ -789,22 +990,60 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
         log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample with NaN or infinity rejected");
         return VL_ERR_NON_FINITE;
     }
-    if (e->have_imu && (imu->utime <= e->last_imu_utime || imu->utime < e->state_utime)) {
+    if (!imu_plausible(e, imu)) {
         e->counters.imu_rejected++;
-        log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample out of time order rejected");
-        return VL_ERR_TIME_ORDER;
+        e->counters.imu_implausible++;
+        log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample beyond max_speed or max_rotation_rate rejected");
+        return VL_ERR_IMPLAUSIBLE;
+    }
+    vl_status_t result = VL_OK;
+    if (e->have_imu) {
+        const vl_status_t st = check_time(e, INPUT_IMU, imu->utime);
+        if (st != VL_OK) {
+            if (!note_timeline(e, INPUT_IMU, imu->utime)) {
+                e->counters.imu_rejected++;
+                if (st == VL_ERR_TIME_JUMP) {
+                    e->counters.time_jumps++;
+                    log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample jumping in time rejected");
+                } else {
+                    log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample out of time order rejected");
+                }
+                return st;
+            }
+            /* The inputs follow a new timeline: restart on it with this sample. */
+            reset_state(e, 0);
+            e->counters.timeline_changes++;
+            log_msg(e, VL_LOG_WARN, imu->utime, "inputs follow a new timeline; re-initialized on it");
+            result = VL_RESET;
+        }
     }
     if (e->have_imu) {
-        propagate_to(e, imu->utime);
+        const int64_t silence = limit_us(e->cfg.max_imu_silence);
+        if (utime_diff(imu->utime, e->last_imu_utime) > silence) {
+            /* The held velocity is trusted for max_imu_silence; the motion after that
+             * is unknown, so the clock jumps over it rather than invent it. */
+            if (!e->imu_silent) {
+                e->counters.imu_silences++;
+            }
+            log_msg(e, VL_LOG_WARN, imu->utime, "IMU back after a silence; the motion during it is not propagated");
+            propagate_to(e, e->last_imu_utime + silence);
+            e->state_utime = imu->utime;
+        } else {
+            propagate_to(e, imu->utime);
+        }
+        time_passed(e, imu->utime);
     } else {
         e->state_utime = imu->utime;
+        e->clock_utime = imu->utime;
+        e->timeline_count = 0;
         e->have_imu = 1;
     }
+    e->imu_silent = 0;
     memcpy(e->held_linear, imu->linear_velocity, sizeof(e->held_linear));
     memcpy(e->held_angular, imu->angular_velocity, sizeof(e->held_angular));
     e->last_imu_utime = imu->utime;
     e->counters.imu_accepted++;
-    return VL_OK;
+    return guard_divergence(e, imu->utime, result);
 }
 
 /* Observation validity before any use: finite pixels and a real id. */
@@ -812,6 +1051,21 @@ static int observation_valid(const vl_stereo_obs_t *o)
 {
     return o->id >= 0 && isfinite(o->u_left) && isfinite(o->v_left) && isfinite(o->u_right) &&
            isfinite(o->v_right);
+}
+
+/*
+ * Physically possible: every pixel inside the image (image_width x image_height,
+ * 2 cx x 2 cy when 0) widened by image_margin, and a disparity no larger than
+ * max_disparity.
+ */
+static int observation_plausible(const vl_estimator_t *e, const vl_stereo_obs_t *o)
+{
+    const vl_config_t *c = &e->cfg;
+    const double m = c->image_margin;
+    const double w = (c->image_width > 0.0 ? c->image_width : 2.0 * c->calibration.cx) + m;
+    const double h = (c->image_height > 0.0 ? c->image_height : 2.0 * c->calibration.cy) + m;
+    return o->u_left >= -m && o->u_left <= w && o->u_right >= -m && o->u_right <= w && o->v_left >= -m &&
+           o->v_left <= h && o->v_right >= -m && o->v_right <= h && o->u_left - o->u_right <= c->max_disparity;
 }
 
 static double depth_of(const vl_calibration_t *cal, double disparity)
@@ -896,6 +1150,10 @@ static uint32_t classify_observations(vl_estimator_t *e, const vl_stereo_frame_t
         const vl_stereo_obs_t *o = &frame->obs[i];
         if (!observation_valid(o)) {
             e->counters.observations_invalid++;
+            continue;
+        }
+        if (!observation_plausible(e, o)) {
+            e->counters.observations_implausible++;
             continue;
         }
         const double disparity = o->u_left - o->u_right;
@@ -1142,10 +1400,29 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         }
         return VL_ERR_NOT_READY;
     }
-    if (frame->utime < e->state_utime || (e->counters.frames_accepted > 0 && frame->utime <= e->last_frame_utime)) {
+    const vl_status_t time_st = check_time(e, INPUT_FRAME, frame->utime);
+    if (time_st != VL_OK) {
+        /* A frame adds to a candidate timeline; the restart waits for an IMU sample to set the clock. */
+        (void)note_timeline(e, INPUT_FRAME, frame->utime);
         e->counters.frames_rejected++;
-        log_msg(e, VL_LOG_WARN, frame->utime, "frame out of time order rejected");
-        return VL_ERR_TIME_ORDER;
+        if (time_st == VL_ERR_TIME_JUMP) {
+            e->counters.time_jumps++;
+            log_msg(e, VL_LOG_WARN, frame->utime, "frame jumping in time rejected");
+        } else {
+            log_msg(e, VL_LOG_WARN, frame->utime, "frame out of time order rejected");
+        }
+        return time_st;
+    }
+    time_passed(e, frame->utime);
+    if (utime_diff(frame->utime, e->last_imu_utime) > limit_us(e->cfg.max_imu_silence)) {
+        e->counters.frames_rejected++;
+        e->counters.frames_imu_silent++;
+        if (!e->imu_silent) {
+            e->imu_silent = 1;
+            e->counters.imu_silences++;
+            log_msg(e, VL_LOG_WARN, frame->utime, "IMU silent longer than max_imu_silence; frames refused");
+        }
+        return VL_ERR_IMU_SILENT;
     }
     vl_status_t result = VL_OK;
     uint32_t count = frame->count;
@@ -1167,13 +1444,13 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     e->num_prev_obs = count;
     memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
     propagate_to(e, frame->utime);
-    const double frame_dt =
-        (e->counters.frames_accepted > 0) ? (double)(frame->utime - e->last_frame_utime) * 1e-6 : 0.0;
+    const double frame_dt = e->have_frame ? (double)utime_diff(frame->utime, e->last_frame_utime) * 1e-6 : 0.0;
     e->last_frame_utime = frame->utime;
+    e->have_frame = 1;
     e->frame_index++;
     e->counters.frames_accepted++;
     if (e->cfg.mode == VL_MODE_IMU_ONLY) {
-        return result;
+        return guard_divergence(e, frame->utime, result);
     }
 
     memset(e->work_seen, 0, sizeof(e->work_seen));
@@ -1181,14 +1458,23 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     candidates_t candidates;
     candidates.count = 0;
     const uint32_t k = classify_observations(e, frame, count, frame_dt, &candidates);
+    const uint64_t reassociated_before = e->counters.frames_reassociated;
+    const uint64_t used_before = e->counters.observations_used;
     const vl_status_t st = update_with_rows(e, frame, k);
     if (st != VL_OK) {
         log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
         result = st;
     }
+    /* A frame whose update was refused or contradicted the state extends the run;
+     * one that corrected the state ends it; one with nothing to use leaves it. */
+    if (st != VL_OK || e->counters.frames_reassociated != reassociated_before) {
+        e->failed_frame_run++;
+    } else if (e->counters.observations_used != used_before) {
+        e->failed_frame_run = 0;
+    }
     retire_landmarks(e);
     admit_candidates(e, frame, &candidates);
-    return result;
+    return guard_divergence(e, frame->utime, result);
 }
 
 vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
@@ -1236,7 +1522,19 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
     out->linear_velocity_noise = sqrt(e->linear_velocity_var);
     out->angular_velocity_noise = sqrt(e->angular_velocity_var);
     out->pixel_noise = sqrt(e->pixel_var);
+    if (!all_finite(out->rotation, 9) || !all_finite(out->position, 3) || !all_finite(out->covariance, 36) ||
+        !all_finite(out->linear_velocity, 3) || !all_finite(out->angular_velocity, 3)) {
+        return VL_ERR_NON_FINITE;
+    }
     return VL_OK;
+}
+
+uint32_t vl_get_state_flags(const vl_estimator_t *e)
+{
+    if (e == NULL || !e->initialized) {
+        return 0u;
+    }
+    return (e->have_imu ? 0u : VL_STATE_NO_CLOCK) | (e->imu_silent ? VL_STATE_IMU_SILENT : 0u);
 }
 
 vl_status_t vl_get_landmarks(const vl_estimator_t *e, vl_landmark_t *out, size_t capacity, size_t *count)

@@ -95,8 +95,12 @@ typedef struct {
     uint64_t decode_errors;          /* payloads that did not decode, or a frame with a bad count */
     uint64_t imu_waiting, frames_waiting; /* refused: no calibration yet */
     uint64_t imu_rejected, frames_rejected; /* refused by the core */
+    uint64_t time_refused;           /* of those, for their time (VL_ERR_TIME_ORDER, VL_ERR_TIME_JUMP) */
+    uint64_t used;                   /* inputs the core used (status >= 0) */
+    uint64_t reset_events;           /* VL_RESET returned: re-initializations, each with an immediate status */
     uint64_t calib_used, calib_ignored, calib_changed, calib_invalid;
     uint64_t poses_out, bot_poses_out, status_out, publish_errors;
+    uint64_t poses_withheld;         /* vl_get_pose refused a non-finite pose: nothing published */
     uint64_t trajectory_errors;
     /* timing */
     uint64_t steps, overruns;
@@ -145,7 +149,8 @@ typedef struct {
     int64_t last_overrun_log_us;
     uint64_t overruns_unlogged;
     /* "since the last status" marks for the health bits */
-    uint64_t overruns_at_status, rejected_at_status, numerical_at_status;
+    uint64_t overruns_at_status, rejected_at_status, time_refused_at_status, used_at_status, inputs_at_status;
+    vl_counters_t core_at_status;
 
     /* allocation counter (LD_PRELOAD), when present */
     alloc_count_fn alloc_count;
@@ -357,10 +362,18 @@ static void apply_calibration(daemon_t *d, const vl_calibration_t *calib)
 
 /* ---- timing ---- */
 
+/* b - a for b > a, saturated: input times are the sender's, INT64_MIN and INT64_MAX included. */
+static int64_t utime_after(int64_t a, int64_t b)
+{
+    const uint64_t d = (uint64_t)b - (uint64_t)a;
+    return d > (uint64_t)INT64_MAX ? INT64_MAX : (int64_t)d;
+}
+
+/* An IMU sample the core used: its interval to the previous one feeds the automatic budget. */
 static void note_imu_interval(daemon_t *d, int64_t utime)
 {
     if (d->have_prev_imu && utime > d->prev_imu_utime) {
-        d->intervals[d->next_interval] = utime - d->prev_imu_utime;
+        d->intervals[d->next_interval] = utime_after(d->prev_imu_utime, utime);
         d->next_interval = (d->next_interval + 1) % INTERVAL_WINDOW;
         if (d->num_intervals < INTERVAL_WINDOW) {
             d->num_intervals++;
@@ -418,11 +431,16 @@ static void publish(daemon_t *d, int ch, const uint8_t *buf, int len)
     }
 }
 
-/* The current pose on VISLAM_POSE and POSE, stamped with the input's time. */
-static void publish_pose(daemon_t *d, int8_t source, int64_t utime)
+/*
+ * The current pose on VISLAM_POSE and POSE, stamped with the input's time.
+ * Returns 0 when published; a pose the core will not hand out (non-finite) is
+ * withheld and counted.
+ */
+static int publish_pose(daemon_t *d, int8_t source, int64_t utime)
 {
     if (vl_get_pose(&g_est, &d->pose) != VL_OK) {
-        return;
+        d->n.poses_withheld++;
+        return -1;
     }
     vl_msg_from_pose(&d->pose, source, (int64_t)d->n.poses_out, &d->pose_msg);
     d->pose_msg.utime = utime;
@@ -434,6 +452,7 @@ static void publish_pose(daemon_t *d, int8_t source, int64_t utime)
     len = bot_core_pose_t_encode(d->bot_buf, 0, (int)sizeof(d->bot_buf), &d->bot_msg);
     publish(d, CH_BOT_POSE, d->bot_buf, len);
     d->n.bot_poses_out++;
+    return 0;
 }
 
 static uint64_t rejected_total(const daemon_t *d)
@@ -466,11 +485,32 @@ static void publish_status(daemon_t *d)
     if (d->n.overruns != d->overruns_at_status) {
         s->health |= VISLAM_STATUS_T_HEALTH_BUDGET_OVERRUN;
     }
-    if (c->numerical_failures != d->numerical_at_status) {
+    const vl_counters_t *was = &d->core_at_status;
+    if (c->numerical_failures != was->numerical_failures) {
         s->health |= VISLAM_STATUS_T_HEALTH_NUMERICAL_FAILURE;
     }
     if (rejected != d->rejected_at_status) {
         s->health |= VISLAM_STATUS_T_HEALTH_INPUT_REJECTED;
+    }
+    if (d->n.time_refused != d->time_refused_at_status) {
+        s->health |= VISLAM_STATUS_T_HEALTH_TIME_REFUSED;
+    }
+    if (c->timeline_changes != was->timeline_changes) {
+        s->health |= VISLAM_STATUS_T_HEALTH_TIMELINE_CHANGE;
+    }
+    if (c->imu_implausible != was->imu_implausible || c->observations_implausible != was->observations_implausible) {
+        s->health |= VISLAM_STATUS_T_HEALTH_IMPLAUSIBLE_INPUT;
+    }
+    if (c->divergence_resets != was->divergence_resets) {
+        s->health |= VISLAM_STATUS_T_HEALTH_DIVERGENCE_RESET;
+    }
+    const uint32_t state = d->initialized ? vl_get_state_flags(&g_est) : 0u;
+    if ((state & VL_STATE_IMU_SILENT) || c->frames_imu_silent != was->frames_imu_silent) {
+        s->health |= VISLAM_STATUS_T_HEALTH_IMU_SILENT;
+    }
+    const uint64_t inputs = d->n.imu_in + d->n.frames_in;
+    if (d->initialized && ((state & VL_STATE_NO_CLOCK) || (inputs != d->inputs_at_status && d->n.used == d->used_at_status))) {
+        s->health |= VISLAM_STATUS_T_HEALTH_NOT_TRACKING;
     }
     s->imu_in = (int64_t)d->n.imu_in;
     s->frames_in = (int64_t)d->n.frames_in;
@@ -493,12 +533,47 @@ static void publish_status(daemon_t *d)
     s->angular_velocity_noise = have_pose ? pose.angular_velocity_noise : d->cfg.angular_velocity_noise;
     s->pixel_noise = have_pose ? pose.pixel_noise : d->cfg.pixel_noise;
     s->frames_repeated = (int64_t)c->frames_repeated;
+    s->time_jumps = (int64_t)c->time_jumps;
+    s->timeline_changes = (int64_t)c->timeline_changes;
+    s->divergence_resets = (int64_t)c->divergence_resets;
+    s->resets = (int64_t)c->resets;
+    s->imu_implausible = (int64_t)c->imu_implausible;
+    s->observations_implausible = (int64_t)c->observations_implausible;
+    s->frames_imu_silent = (int64_t)c->frames_imu_silent;
     const int len = vislam_status_t_encode(d->status_buf, 0, (int)sizeof(d->status_buf), s);
     publish(d, CH_STATUS, d->status_buf, len);
     d->n.status_out++;
     d->overruns_at_status = d->n.overruns;
-    d->numerical_at_status = c->numerical_failures;
+    d->core_at_status = *c;
     d->rejected_at_status = rejected;
+    d->time_refused_at_status = d->n.time_refused;
+    d->used_at_status = d->n.used;
+    d->inputs_at_status = inputs;
+}
+
+/* A refusal by the core, counted by kind for the health bits. */
+static void note_refusal(daemon_t *d, vl_status_t s)
+{
+    if (s == VL_ERR_TIME_ORDER || s == VL_ERR_TIME_JUMP) {
+        d->n.time_refused++;
+    }
+}
+
+/*
+ * The estimator re-initialized (VL_RESET): the event is an immediate status
+ * with TIMELINE_CHANGE or DIVERGENCE_RESET set, so a listener need not wait for
+ * the periodic one. Intervals of the old timeline no longer say anything.
+ */
+static void on_reset(daemon_t *d, int64_t utime)
+{
+    d->n.reset_events++;
+    d->have_prev_imu = 0;
+    if (!d->opt.quiet) {
+        fprintf(stderr, "vislamd: estimator re-initialized at utime %" PRId64 " (%" PRIu64 " timeline change(s), %" PRIu64
+                        " divergence reset(s) in all)\n",
+                utime, vl_get_counters(&g_est)->timeline_changes, vl_get_counters(&g_est)->divergence_resets);
+    }
+    publish_status(d);
 }
 
 static void print_status_line(const daemon_t *d)
@@ -556,13 +631,19 @@ static void on_imu(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
         return;
     }
     vl_msg_to_imu(&d->imu_msg, &d->imu);
-    note_imu_interval(d, d->imu.utime);
     d->inputs_fed = 1;
-    if (vl_propagate(&g_est, &d->imu) < 0) {
+    const vl_status_t s = vl_propagate(&g_est, &d->imu);
+    if (s < 0) {
         d->n.imu_rejected++;
+        note_refusal(d, s);
     } else {
+        d->n.used++;
+        if (s == VL_RESET) {
+            on_reset(d, d->imu.utime);
+        }
+        note_imu_interval(d, d->imu.utime);
         d->last_input_utime = d->imu.utime;
-        publish_pose(d, VISLAM_POSE_T_SOURCE_IMU, d->imu.utime);
+        (void)publish_pose(d, VISLAM_POSE_T_SOURCE_IMU, d->imu.utime);
     }
     finish_step(d, STEP_PROPAGATE, t0, d->imu.utime);
 }
@@ -587,10 +668,15 @@ static void on_features(const lcm_recv_buf_t *rbuf, const char *channel, void *u
     const vl_status_t s = vl_update(&g_est, &d->frame);
     if (s < 0) {
         d->n.frames_rejected++;
+        note_refusal(d, s);
     } else {
+        d->n.used++;
+        if (s == VL_RESET) {
+            on_reset(d, d->frame.utime);
+        }
         d->last_input_utime = d->frame.utime;
-        publish_pose(d, VISLAM_POSE_T_SOURCE_FEATURES, d->frame.utime);
-        if (d->have_trajectory && vl_trajectory_write(&d->trajectory, d->frame.utime, &d->pose) != 0) {
+        if (publish_pose(d, VISLAM_POSE_T_SOURCE_FEATURES, d->frame.utime) == 0 && d->have_trajectory &&
+            vl_trajectory_write(&d->trajectory, d->frame.utime, &d->pose) != 0) {
             if (d->n.trajectory_errors++ == 0) {
                 fprintf(stderr, "vislamd: error: write to the trajectory %s failed\n", d->opt.trajectory_path);
             }
@@ -748,6 +834,12 @@ static void print_summary(const daemon_t *d)
             c->frames_accepted, c->observations_used, c->observations_gated, c->landmarks_marginalized,
             d->initialized ? (unsigned)vl_window_size(&g_est) : 0u, (unsigned)d->cfg.max_landmarks,
             c->numerical_failures);
+    fprintf(stderr,
+            "  robustness: time refused %" PRIu64 " (jumps %" PRIu64 "), timeline changes %" PRIu64
+            ", divergence resets %" PRIu64 ", implausible imu %" PRIu64 " observations %" PRIu64
+            ", frames refused for IMU silence %" PRIu64 ", poses withheld %" PRIu64 "\n",
+            d->n.time_refused, c->time_jumps, c->timeline_changes, c->divergence_resets, c->imu_implausible,
+            c->observations_implausible, c->frames_imu_silent, d->n.poses_withheld);
     fprintf(stderr, "  budget %" PRId64 " us (%s): %" PRIu64 " overrun(s) in %" PRIu64 " steps\n", d->budget_us,
             d->opt.budget_us > 0 ? "--budget-us" : "sensor period", d->n.overruns, d->n.steps);
     fprintf(stderr, "  step latency (CLOCK_MONOTONIC, decode to publish):\n");

@@ -9,8 +9,11 @@
  *   bot.count / bot.decode_errors / bot.matches_pose 1|0 (same utime and position as VISLAM_POSE, in order)
  *   status.count / status.decode_errors / status.utime_increasing 1|0
  *   status.first.FIELD V / status.last.FIELD V   every field of the first and last vislam.status_t
+ *   status.health_any V            the OR of every status' health bits
+ *   pose.all_finite 1|0            every VISLAM_POSE position, orientation and covariance is finite
  */
 #include <inttypes.h>
+#include <math.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <string.h>
@@ -71,6 +74,13 @@ static void print_status(const char *which, const vislam_status_t *s)
     F64(latency_p999_us);
     F64(latency_max_us);
     F64(frames_repeated);
+    F64(time_jumps);
+    F64(timeline_changes);
+    F64(divergence_resets);
+    F64(resets);
+    F64(imu_implausible);
+    F64(observations_implausible);
+    F64(frames_imu_silent);
 #undef F64
 #define FDBL(f) printf("status.%s.%s %.9g\n", which, #f, s->f)
     FDBL(linear_velocity_noise);
@@ -94,7 +104,8 @@ int main(int argc, char **argv)
     static bot_core_pose_t bot;
     static vislam_status_t status, first_status, last_status;
     uint64_t poses = 0, imu = 0, features = 0, pose_err = 0, bots = 0, bot_err = 0, statuses = 0, status_err = 0;
-    int sequence_ok = 1, bot_match = 1, status_increasing = 1;
+    int sequence_ok = 1, bot_match = 1, status_increasing = 1, poses_finite = 1;
+    int32_t health_any = 0;
     int64_t last_features_utime = 0;
     lcm_eventlog_event_t *ev;
     while ((ev = lcm_eventlog_read_next_event(log)) != NULL) {
@@ -105,6 +116,12 @@ int main(int argc, char **argv)
             } else {
                 if (pose.sequence != (int64_t)poses) {
                     sequence_ok = 0;
+                }
+                for (int i = 0; i < 36; ++i) {
+                    if (!isfinite(pose.covariance[i]) || (i < 3 && !isfinite(pose.position[i])) ||
+                        (i < 4 && !isfinite(pose.orientation[i]))) {
+                        poses_finite = 0;
+                    }
                 }
                 if (poses < MAX_POSES) {
                     pose_utime[poses] = pose.utime;
@@ -137,6 +154,7 @@ int main(int argc, char **argv)
                     status_increasing = 0;
                 }
                 last_status = status;
+                health_any |= status.health;
                 statuses++;
             }
         }
@@ -149,10 +167,12 @@ int main(int argc, char **argv)
     printf("pose.count %" PRIu64 "\npose.imu %" PRIu64 "\npose.features %" PRIu64 "\npose.decode_errors %" PRIu64
            "\npose.sequence_ok %d\npose.last_features_utime %" PRId64 "\n",
            poses, imu, features, pose_err, sequence_ok, last_features_utime);
+    printf("pose.all_finite %d\n", poses_finite);
     printf("bot.count %" PRIu64 "\nbot.decode_errors %" PRIu64 "\nbot.matches_pose %d\n", bots, bot_err,
            bot_match && bots == poses);
     printf("status.count %" PRIu64 "\nstatus.decode_errors %" PRIu64 "\nstatus.utime_increasing %d\n", statuses,
            status_err, status_increasing);
+    printf("status.health_any %d\n", (int)health_any);
     if (statuses > 0) {
         print_status("first", &first_status);
         print_status("last", &last_status);

@@ -113,6 +113,14 @@ static const char *status_name(int status)
         return "VL_ERR_CAPACITY";
     case VL_ERR_MISALIGNED:
         return "VL_ERR_MISALIGNED";
+    case VL_RESET:
+        return "VL_RESET";
+    case VL_ERR_TIME_JUMP:
+        return "VL_ERR_TIME_JUMP";
+    case VL_ERR_IMPLAUSIBLE:
+        return "VL_ERR_IMPLAUSIBLE";
+    case VL_ERR_IMU_SILENT:
+        return "VL_ERR_IMU_SILENT";
     }
     return "VL_STATUS_UNKNOWN";
 }
@@ -725,7 +733,7 @@ int main(int argc, char **argv)
             }
             count_status(run.update_status, s);
             run.frames_processed++;
-            if (s == VL_OK || s == VL_FRAME_TRUNCATED) {
+            if (s >= 0) { /* used: VL_OK, or an event (truncated, re-initialized) */
                 vl_pose_t pose;
                 if (vl_get_pose(est, &pose) == VL_OK) {
                     vl_trajectory_write(&traj, ev.frame.utime, &pose);

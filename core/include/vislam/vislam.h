@@ -61,14 +61,21 @@ extern "C" {
 
 /**
  * Status of every core call. Negative values are refusals: the input was not
- * used and the estimator is unchanged, except VL_ERR_NOT_POSITIVE_DEFINITE,
- * where only the joint update was refused (the frame's prediction and window
- * bookkeeping still happened).
+ * used and the estimator is unchanged apart from its counters, except
+ * VL_ERR_NOT_POSITIVE_DEFINITE, where only the joint update was refused (the
+ * frame's prediction and window bookkeeping still happened). Positive values
+ * are events of a call that succeeded.
  */
 typedef enum {
     VL_OK = 0,                        /**< Done. */
     VL_FRAME_TRUNCATED = 1,           /**< Frame had more than VL_MAX_FRAME_FEATURES observations;
                                            the first ones were used, the rest counted. */
+    VL_RESET = 2,                     /**< The estimator re-initialized in this call, keeping its
+                                           configuration, calibration and counters: identity pose,
+                                           empty window. On a new timeline (timeline_changes) the input
+                                           is the first IMU sample of the new clock; after divergence
+                                           (divergence_resets) the input was used, the divergence found
+                                           after it, and the clock and held IMU sample are kept. */
     VL_ERR_NULL = -1,                 /**< A required pointer was NULL. */
     VL_ERR_CONFIG = -2,               /**< A configuration value is out of range (see vl_config_check). */
     VL_ERR_NOT_READY = -3,            /**< A frame arrived before the first IMU sample set the clock. */
@@ -78,13 +85,19 @@ typedef enum {
     VL_ERR_NOT_POSITIVE_DEFINITE = -6,/**< The innovation covariance failed its Cholesky factorization;
                                            the update was not applied. */
     VL_ERR_CAPACITY = -7,             /**< Output buffer too small (vl_get_landmarks). */
-    VL_ERR_MISALIGNED = -8            /**< The estimator is not VL_ESTIMATOR_ALIGN-byte aligned (heap
+    VL_ERR_MISALIGNED = -8,           /**< The estimator is not VL_ESTIMATOR_ALIGN-byte aligned (heap
                                            copies need aligned_alloc; static ones are aligned). */
+    VL_ERR_TIME_JUMP = -9,            /**< Input time more than max_time_jump away from the estimator's
+                                           clock, ahead or behind; refused, the clock did not move. */
+    VL_ERR_IMPLAUSIBLE = -10,         /**< IMU sample beyond max_speed or max_rotation_rate; refused. */
+    VL_ERR_IMU_SILENT = -11           /**< Frame more than max_imu_silence after the last IMU sample:
+                                           not propagated with a stale velocity, refused; the
+                                           estimator is degraded until the IMU returns. */
 } vl_status_t;
 
 /** Lowest and highest vl_status_t values, for tables indexed by status. */
-#define VL_STATUS_MIN VL_ERR_MISALIGNED
-#define VL_STATUS_MAX VL_FRAME_TRUNCATED
+#define VL_STATUS_MIN VL_ERR_IMU_SILENT
+#define VL_STATUS_MAX VL_RESET
 
 /** What the estimator does with its inputs (the seed project's three parts). */
 typedef enum {
@@ -122,6 +135,9 @@ typedef enum { VL_LOG_DEBUG = 0, VL_LOG_INFO = 1, VL_LOG_WARN = 2, VL_LOG_ERROR 
 /** Injected logger; the core formats nothing itself beyond a short fixed message. */
 typedef void (*vl_log_fn)(void *user, vl_log_level_t level, int64_t utime, const char *message);
 
+/** Largest max_time_jump and max_imu_silence, s (their microseconds stay far inside int64). */
+#define VL_MAX_TIME_LIMIT 1e9
+
 /** Estimator configuration. Start from vl_config_default() or vl_config_preset_seed(). */
 typedef struct {
     vl_mode_t mode;                      /**< what to estimate */
@@ -151,6 +167,23 @@ typedef struct {
                                          second frame on, admission also needs the new observation to
                                          agree with the previous one (gate_chi2) */
     double max_propagation_dt;      /**< s, longer gaps are counted (time_gaps) and still propagated */
+
+    /* Robustness limits (README "Robustness"). */
+    double max_time_jump;           /**< s, (0, 1e9]: an input this far from the clock, ahead or behind,
+                                         is a time jump: refused and counted (time_jumps) */
+    uint32_t new_timeline_samples;  /**< >= 2: this many consecutive time-refused inputs that follow
+                                         one another in time are a new timeline: re-initialize */
+    double max_speed;               /**< m/s, > 0: IMU samples with a faster linear velocity are refused */
+    double max_rotation_rate;       /**< rad/s, > 0: IMU samples turning faster are refused */
+    double image_width;             /**< px, >= 0: image width; 0 takes 2 cx */
+    double image_height;            /**< px, >= 0: image height; 0 takes 2 cy */
+    double image_margin;            /**< px, >= 0: pixels this far outside the image still count as inside */
+    double max_disparity;           /**< px, > 0: observations with a larger disparity are refused */
+    double max_imu_silence;         /**< s, (0, 1e9]: a held IMU velocity is used at most this long
+                                         after its sample; later frames are refused (degraded) */
+    uint32_t divergence_frames;     /**< frames in a row whose update failed (refused, or most
+                                         observations contradicting the state) before the SLAM
+                                         estimator counts as diverged and resets; 0: never */
 
     vl_calibration_t calibration;   /**< stereo rig */
 
@@ -201,9 +234,9 @@ typedef struct {
 /** Running counters; all monotonic since vl_init. */
 typedef struct {
     uint64_t imu_accepted;              /**< IMU samples used */
-    uint64_t imu_rejected;              /**< IMU samples refused (non-finite, time order) */
+    uint64_t imu_rejected;              /**< IMU samples refused (non-finite, time order, time jump, implausible) */
     uint64_t frames_accepted;           /**< frames used */
-    uint64_t frames_rejected;           /**< frames refused (non-finite, time order, not ready) */
+    uint64_t frames_rejected;           /**< frames refused (time order, time jump, not ready, IMU silent) */
     uint64_t frames_truncated;          /**< frames over VL_MAX_FRAME_FEATURES */
     uint64_t observations_received;     /**< observations in accepted frames, before truncation */
     uint64_t observations_truncated;    /**< observations dropped by truncation */
@@ -224,6 +257,15 @@ typedef struct {
     uint64_t landmarks_evicted;         /**< of those, removed early to make room */
     uint64_t numerical_failures;        /**< updates refused with VL_ERR_NOT_POSITIVE_DEFINITE */
     uint64_t time_gaps;                 /**< propagations longer than max_propagation_dt */
+    uint64_t time_jumps;                /**< inputs refused as more than max_time_jump from the clock */
+    uint64_t timeline_changes;          /**< re-initializations on a new timeline */
+    uint64_t divergence_resets;         /**< re-initializations after divergence */
+    uint64_t resets;                    /**< every re-initialization (those two and vl_reset) */
+    uint64_t landmarks_discarded;       /**< window landmarks dropped by a reset (not handed to the sink) */
+    uint64_t imu_implausible;           /**< IMU samples beyond max_speed or max_rotation_rate */
+    uint64_t observations_implausible;  /**< pixels outside the image (with margin) or disparity over max_disparity */
+    uint64_t imu_silences;              /**< times the IMU fell silent for longer than max_imu_silence */
+    uint64_t frames_imu_silent;         /**< frames refused because the IMU was silent */
     uint32_t window_peak;               /**< most landmarks ever in the window */
 } vl_counters_t;
 
@@ -234,7 +276,7 @@ typedef struct {
 } vl_counter_entry_t;
 
 /** Number of members of vl_counters_t. */
-#define VL_NUM_COUNTERS 25
+#define VL_NUM_COUNTERS 34
 
 /** Per-landmark bookkeeping of the window (internal; read with vl_get_landmarks). */
 typedef struct {
@@ -281,6 +323,16 @@ typedef struct {
     int64_t last_imu_utime;     /**< us */
     int64_t last_frame_utime;   /**< us */
     uint64_t frame_index;
+    int have_frame;             /**< a frame was accepted on this timeline */
+    int64_t clock_utime;        /**< us, latest input time that passed the time policy */
+    int imu_silent;             /**< the IMU has been silent longer than max_imu_silence */
+    uint32_t failed_frame_run;  /**< consecutive frames whose update failed (divergence guard) */
+    /** A candidate new timeline: consecutive time-refused inputs that follow one another. */
+    uint32_t timeline_count;
+    int64_t timeline_last_utime;       /**< us, latest input of the candidate */
+    int64_t timeline_last_imu_utime;   /**< us, latest IMU sample of the candidate */
+    int64_t timeline_last_frame_utime; /**< us, latest frame of the candidate */
+    int timeline_have_imu, timeline_have_frame;
 
     double R[9];                /**< world-from-IMU rotation, row-major */
     double p[3];                /**< m */
@@ -353,7 +405,11 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu);
  */
 vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame);
 
-/** Reads the current pose and its marginal covariance. */
+/**
+ * Reads the current pose and its marginal covariance. Never hands out a
+ * non-finite pose: VL_ERR_NON_FINITE instead (the divergence guard resets the
+ * estimator before that can last beyond one call).
+ */
 vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out);
 
 /**
@@ -362,6 +418,20 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out);
  * @return VL_OK, or VL_ERR_CAPACITY when capacity < count (out holds the first capacity).
  */
 vl_status_t vl_get_landmarks(const vl_estimator_t *e, vl_landmark_t *out, size_t capacity, size_t *count);
+
+/**
+ * Re-initializes the estimator as vl_init would with its current configuration
+ * (calibration included), keeping the counters; window landmarks are dropped
+ * (landmarks_discarded), not handed to the sink. Counted in resets.
+ */
+vl_status_t vl_reset(vl_estimator_t *e);
+
+/** Bits of vl_get_state_flags: conditions of the estimator now (not events). */
+#define VL_STATE_NO_CLOCK 1u   /**< no IMU sample yet since vl_init or the last reset: nothing to track */
+#define VL_STATE_IMU_SILENT 2u /**< degraded: the IMU has been silent longer than max_imu_silence */
+
+/** VL_STATE_* bits of the estimator now; 0 when tracking normally (and for NULL). */
+uint32_t vl_get_state_flags(const vl_estimator_t *e);
 
 /** Marginalizes every landmark in the window into the sink (end of a run). */
 vl_status_t vl_flush_landmarks(vl_estimator_t *e);

@@ -1,0 +1,634 @@
+/*
+ * The estimator's robustness rules (README "Robustness"): time jumps, new
+ * timelines, implausible inputs, the divergence guard and IMU silence. Each
+ * test feeds the public API the fault and checks what the rule promises.
+ */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "unity.h"
+#include "vl_test_util.h"
+#include "vislam/vislam.h"
+#include "vl_stereo.h"
+
+static vl_estimator_t est;
+static vl_estimator_t twin; /* a fresh estimator fed what the reset one should be equivalent to */
+
+#define T0 1317386436000000LL /* a real drive's start, us */
+#define STEP 100000LL         /* 10 Hz, us */
+#define NUM_POINTS 20
+
+static void test_config(vl_config_t *cfg)
+{
+    vl_config_default(cfg);
+    vl_test_kitti_calibration(&cfg->calibration, 1);
+}
+
+/* Pixels of a world point seen from the identity pose. */
+static void observe(const vl_config_t *cfg, const double pw[3], int32_t id, vl_stereo_obs_t *o)
+{
+    const double *T = cfg->calibration.cam_T_imu;
+    double c[3];
+    for (int i = 0; i < 3; ++i) {
+        c[i] = T[4 * i] * pw[0] + T[4 * i + 1] * pw[1] + T[4 * i + 2] * pw[2] + T[4 * i + 3];
+    }
+    double y[3];
+    vl_stereo_project(&cfg->calibration, c, y, NULL);
+    o->id = id;
+    o->u_left = y[0];
+    o->v_left = y[1];
+    o->u_right = y[2];
+    o->v_right = y[1];
+}
+
+/* A frame of a vehicle standing at the identity pose, seeing NUM_POINTS fixed points ahead. */
+static void make_frame(const vl_config_t *cfg, vl_stereo_frame_t *f, int64_t utime)
+{
+    f->utime = utime;
+    f->count = NUM_POINTS;
+    for (uint32_t i = 0; i < NUM_POINTS; ++i) {
+        const double pw[3] = {8.0 + 1.5 * (double)i, -4.0 + 0.7 * (double)(i % 11), -1.0 + 0.3 * (double)(i % 7)};
+        observe(cfg, pw, (int32_t)i, &f->obs[i]);
+    }
+}
+
+static vl_imu_sample_t imu_at(int64_t utime, double vx)
+{
+    vl_imu_sample_t s;
+    memset(&s, 0, sizeof(s));
+    s.utime = utime;
+    s.linear_velocity[0] = vx;
+    return s;
+}
+
+/* One step of a standing vehicle: the IMU sample, then the frame at the same time. */
+static void step(vl_estimator_t *e, const vl_config_t *cfg, int64_t utime, vl_status_t *imu_st, vl_status_t *frame_st)
+{
+    static vl_stereo_frame_t frame;
+    const vl_imu_sample_t s = imu_at(utime, 0.0);
+    *imu_st = vl_propagate(e, &s);
+    make_frame(cfg, &frame, utime);
+    *frame_st = vl_update(e, &frame);
+}
+
+/* Runs n clean steps from utime and expects every one to be used. */
+static void clean_steps(vl_estimator_t *e, const vl_config_t *cfg, int64_t utime, int n)
+{
+    for (int k = 0; k < n; ++k) {
+        vl_status_t a, b;
+        step(e, cfg, utime + k * STEP, &a, &b);
+        TEST_ASSERT_EQUAL_INT(VL_OK, a);
+        TEST_ASSERT_EQUAL_INT(VL_OK, b);
+    }
+}
+
+static void get_pose(const vl_estimator_t *e, vl_pose_t *p)
+{
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(e, p));
+}
+
+/* Same state, bit for bit: pose, covariance, time. */
+static void assert_same_pose(const vl_estimator_t *a, const vl_estimator_t *b)
+{
+    vl_pose_t pa, pb;
+    get_pose(a, &pa);
+    get_pose(b, &pb);
+    TEST_ASSERT_EQUAL_INT64(pa.utime, pb.utime);
+    TEST_ASSERT_EQUAL_MEMORY(pa.rotation, pb.rotation, sizeof(pa.rotation));
+    TEST_ASSERT_EQUAL_MEMORY(pa.position, pb.position, sizeof(pa.position));
+    TEST_ASSERT_EQUAL_MEMORY(pa.covariance, pb.covariance, sizeof(pa.covariance));
+    TEST_ASSERT_EQUAL_UINT32(vl_window_size(a), vl_window_size(b));
+}
+
+void setUp(void)
+{
+}
+
+void tearDown(void)
+{
+}
+
+/* ------------------------------------------------------------ configuration */
+
+void test_defaults_and_seed_preset_are_valid_and_limits_are_checked(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_config_check(&cfg));
+    vl_config_t seed;
+    vl_config_preset_seed(&seed);
+    seed.calibration = cfg.calibration;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_config_check(&seed));
+
+    vl_config_t bad = cfg;
+    bad.max_time_jump = 0.0;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&bad));
+    bad = cfg;
+    bad.max_time_jump = 2e9; /* its microseconds would not fit the time arithmetic's margin */
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&bad));
+    bad = cfg;
+    bad.new_timeline_samples = 1; /* one stray sample must never switch timelines */
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&bad));
+    bad = cfg;
+    bad.max_speed = NAN;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&bad));
+    bad = cfg;
+    bad.max_rotation_rate = 0.0;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&bad));
+    bad = cfg;
+    bad.image_margin = -1.0;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&bad));
+    bad = cfg;
+    bad.max_disparity = 0.0;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&bad));
+    bad = cfg;
+    bad.max_imu_silence = INFINITY;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&bad));
+}
+
+void test_every_status_has_a_description(void)
+{
+    for (int s = VL_STATUS_MIN; s <= VL_STATUS_MAX; ++s) {
+        TEST_ASSERT_NOT_EQUAL(0, strcmp("unknown status", vl_status_str((vl_status_t)s)));
+    }
+    TEST_ASSERT_EQUAL_STRING("unknown status", vl_status_str((vl_status_t)(VL_STATUS_MAX + 1)));
+    TEST_ASSERT_EQUAL_STRING("unknown status", vl_status_str((vl_status_t)(VL_STATUS_MIN - 1)));
+}
+
+/* ------------------------------------------------------------ time */
+
+void test_time_jump_ahead_or_behind_is_refused_and_leaves_the_clock(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&twin, &cfg));
+    vl_imu_sample_t s = imu_at(T0, 1.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&twin, &s));
+
+    vl_imu_sample_t ahead = imu_at(T0 + 3600000000LL, 1.0); /* one hour ahead */
+    TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_JUMP, vl_propagate(&est, &ahead));
+    vl_imu_sample_t behind = imu_at(T0 - 3600000000LL, 1.0);
+    TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_JUMP, vl_propagate(&est, &behind));
+    static vl_stereo_frame_t frame;
+    make_frame(&cfg, &frame, T0 + 3600000000LL);
+    TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_JUMP, vl_update(&est, &frame));
+
+    vl_pose_t p;
+    get_pose(&est, &p);
+    TEST_ASSERT_EQUAL_INT64(T0, p.utime); /* the clock did not move */
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(3, c->time_jumps);
+    TEST_ASSERT_EQUAL_UINT64(2, c->imu_rejected);
+    TEST_ASSERT_EQUAL_UINT64(1, c->frames_rejected);
+    TEST_ASSERT_EQUAL_UINT64(0, c->timeline_changes);
+
+    /* The next sample on the real timeline is used as if the jumps never came. */
+    for (int k = 1; k <= 3; ++k) {
+        s = imu_at(T0 + k * STEP, 1.0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&twin, &s));
+    }
+    assert_same_pose(&est, &twin);
+    get_pose(&est, &p);
+    TEST_ASSERT_DOUBLE_WITHIN(1e-9, 0.3, p.position[0]);
+}
+
+void test_int64_max_sample_is_refused_and_the_drive_goes_on(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    clean_steps(&est, &cfg, T0, 3);
+    vl_imu_sample_t s = imu_at(INT64_MAX, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_JUMP, vl_propagate(&est, &s));
+    s = imu_at(INT64_MIN, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_JUMP, vl_propagate(&est, &s));
+    clean_steps(&est, &cfg, T0 + 3 * STEP, 3);
+    TEST_ASSERT_EQUAL_UINT64(2, vl_get_counters(&est)->time_jumps);
+    TEST_ASSERT_EQUAL_UINT64(0, vl_get_counters(&est)->resets);
+    TEST_ASSERT_EQUAL_UINT64(6, vl_get_counters(&est)->frames_accepted);
+}
+
+/*
+ * A first sample at an extreme time sets the clock there; the real drive that
+ * follows is refused as a jump until it has been a timeline for
+ * new_timeline_samples inputs, then the estimator restarts on it, as a fresh
+ * estimator started at that sample would be.
+ */
+static void check_recovery_from_first_sample_at(int64_t first_utime)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(first_utime, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+
+    int64_t reset_utime = 0;
+    for (int k = 0; k < 10 && reset_utime == 0; ++k) {
+        vl_status_t a, b;
+        step(&est, &cfg, T0 + k * STEP, &a, &b);
+        if (a == VL_RESET) {
+            reset_utime = T0 + k * STEP;
+            TEST_ASSERT_EQUAL_INT(VL_OK, b); /* the frame of the same step is used */
+        } else {
+            TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_JUMP, a);
+            TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_JUMP, b);
+        }
+    }
+    TEST_ASSERT_TRUE_MESSAGE(reset_utime != 0, "no re-initialization within 1 s of sensor time");
+    TEST_ASSERT_TRUE(reset_utime - T0 <= 1000000);
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->timeline_changes);
+
+    /* From the reset on, exactly a fresh estimator started at that sample. */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&twin, &cfg));
+    vl_status_t a, b;
+    step(&twin, &cfg, reset_utime, &a, &b);
+    TEST_ASSERT_EQUAL_INT(VL_OK, a);
+    TEST_ASSERT_EQUAL_INT(VL_OK, b);
+    clean_steps(&est, &cfg, reset_utime + STEP, 10);
+    clean_steps(&twin, &cfg, reset_utime + STEP, 10);
+    assert_same_pose(&est, &twin);
+    TEST_ASSERT_TRUE(vl_window_size(&est) > 0); /* tracking: landmarks in the window */
+    TEST_ASSERT_EQUAL_UINT64(vl_get_counters(&twin)->observations_used, vl_get_counters(&est)->observations_used);
+    TEST_ASSERT_TRUE(vl_get_counters(&est)->observations_used > 0);
+}
+
+void test_first_sample_at_int64_min_recovers_within_a_second(void)
+{
+    check_recovery_from_first_sample_at(INT64_MIN);
+}
+
+void test_first_sample_at_int64_max_recovers_within_a_second(void)
+{
+    check_recovery_from_first_sample_at(INT64_MAX);
+}
+
+/* The whole stream moves by shift (a restarted log, a stepped clock): a restart within 1 s of sensor time. */
+static void check_new_timeline(int64_t shift, vl_status_t refusal)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    clean_steps(&est, &cfg, T0, 20);
+    const uint32_t window = vl_window_size(&est);
+    TEST_ASSERT_TRUE(window > 0);
+
+    const int64_t start = T0 + 20 * STEP + shift;
+    int64_t reset_utime = 0;
+    for (int k = 0; k < 10 && reset_utime == 0; ++k) {
+        vl_status_t a, b;
+        step(&est, &cfg, start + k * STEP, &a, &b);
+        if (a == VL_RESET) {
+            reset_utime = start + k * STEP;
+            TEST_ASSERT_EQUAL_INT(VL_OK, b);
+        } else {
+            TEST_ASSERT_EQUAL_INT(refusal, a);
+            TEST_ASSERT_EQUAL_INT(refusal, b);
+        }
+    }
+    TEST_ASSERT_TRUE_MESSAGE(reset_utime != 0, "no re-initialization within 1 s of sensor time");
+    TEST_ASSERT_TRUE(reset_utime - start < 1000000);
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(1, c->timeline_changes);
+    TEST_ASSERT_EQUAL_UINT64(1, c->resets);
+    TEST_ASSERT_EQUAL_UINT64(0, c->divergence_resets);
+    TEST_ASSERT_EQUAL_UINT64(window, c->landmarks_discarded);
+    TEST_ASSERT_EQUAL_UINT64(21, c->imu_accepted); /* 20 before, then the one that started the new timeline */
+
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&twin, &cfg));
+    vl_status_t a, b;
+    step(&twin, &cfg, reset_utime, &a, &b);
+    clean_steps(&est, &cfg, reset_utime + STEP, 10);
+    clean_steps(&twin, &cfg, reset_utime + STEP, 10);
+    assert_same_pose(&est, &twin);
+    TEST_ASSERT_TRUE(vl_window_size(&est) > 0);
+}
+
+void test_stream_shifted_an_hour_back_reinitializes_and_tracks_again(void)
+{
+    check_new_timeline(-3600000000LL, VL_ERR_TIME_JUMP);
+}
+
+void test_stream_shifted_an_hour_ahead_reinitializes_and_tracks_again(void)
+{
+    check_new_timeline(3600000000LL, VL_ERR_TIME_JUMP);
+}
+
+void test_log_replayed_again_a_few_seconds_back_reinitializes(void)
+{
+    /* Less than max_time_jump back: refused for time order, and still a new timeline. */
+    check_new_timeline(-3000000LL, VL_ERR_TIME_ORDER);
+}
+
+void test_stray_samples_and_a_stuck_clock_never_switch_timelines(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    clean_steps(&est, &cfg, T0, 2);
+    /* A stray sample one hour ahead, consistent with the previous stray, between every clean step. */
+    for (int k = 2; k < 40; ++k) {
+        vl_imu_sample_t stray = imu_at(T0 + 3600000000LL + k * STEP, 0.0);
+        TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_JUMP, vl_propagate(&est, &stray));
+        clean_steps(&est, &cfg, T0 + k * STEP, 1);
+    }
+    /* A clock stuck at INT64_MAX: many refusals in a row, but no timeline. */
+    for (int k = 0; k < 20; ++k) {
+        vl_imu_sample_t stuck = imu_at(INT64_MAX, 0.0);
+        TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_JUMP, vl_propagate(&est, &stuck));
+    }
+    TEST_ASSERT_EQUAL_UINT64(0, vl_get_counters(&est)->timeline_changes);
+    TEST_ASSERT_EQUAL_UINT64(58, vl_get_counters(&est)->time_jumps);
+    clean_steps(&est, &cfg, T0 + 40 * STEP, 1);
+}
+
+/* ------------------------------------------------------------ plausibility */
+
+void test_absurd_imu_samples_are_refused_and_counted(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(T0, 1.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    vl_imu_sample_t absurd = imu_at(T0 + STEP, 1e300);
+    TEST_ASSERT_EQUAL_INT(VL_ERR_IMPLAUSIBLE, vl_propagate(&est, &absurd));
+    absurd = imu_at(T0 + STEP, 0.0);
+    absurd.angular_velocity[1] = 36.0; /* over 35 rad/s */
+    TEST_ASSERT_EQUAL_INT(VL_ERR_IMPLAUSIBLE, vl_propagate(&est, &absurd));
+    absurd = imu_at(T0 + STEP, 0.0);
+    absurd.linear_velocity[0] = 60.0;
+    absurd.linear_velocity[1] = 90.0; /* each axis under 100 m/s, the speed over it */
+    TEST_ASSERT_EQUAL_INT(VL_ERR_IMPLAUSIBLE, vl_propagate(&est, &absurd));
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(3, c->imu_implausible);
+    TEST_ASSERT_EQUAL_UINT64(3, c->imu_rejected);
+
+    vl_imu_sample_t fast = imu_at(T0 + STEP, 99.0); /* within the limit */
+    fast.angular_velocity[2] = 34.0;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &fast));
+    vl_pose_t p;
+    get_pose(&est, &p);
+    TEST_ASSERT_DOUBLE_WITHIN(1e-9, 0.1, p.position[0]); /* the held 1 m/s over 0.1 s, not 1e300 */
+    TEST_ASSERT_EQUAL_UINT64(3, c->imu_implausible);
+}
+
+void test_pixels_outside_the_image_and_absurd_disparity_are_refused(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    const vl_imu_sample_t s = imu_at(T0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    static vl_stereo_frame_t f;
+    make_frame(&cfg, &f, T0);
+    const double w = 2.0 * cfg.calibration.cx, h = 2.0 * cfg.calibration.cy, m = cfg.image_margin;
+    f.obs[0].u_left = w + m + 1.0;       /* right of the image */
+    f.obs[1].v_right = -m - 1.0;          /* above it */
+    f.obs[2].v_left = h + m + 1.0;        /* below it */
+    f.obs[3].u_left = f.obs[3].u_right + cfg.max_disparity + 1.0; /* nearer than any camera sees */
+    f.obs[4].u_left = w + m - 1.0;        /* inside the margin: plausible */
+    f.obs[4].u_right = f.obs[4].u_left - 30.0;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(4, c->observations_implausible);
+    TEST_ASSERT_EQUAL_UINT64(0, c->observations_invalid);
+
+    /* An explicit image size replaces 2 cx x 2 cy. */
+    cfg.image_width = 640.0;
+    cfg.image_height = 480.0;
+    cfg.image_margin = 0.0;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(&cfg, &f, T0);
+    uint32_t outside = 0;
+    for (uint32_t i = 0; i < f.count; ++i) {
+        const vl_stereo_obs_t *o = &f.obs[i];
+        outside += o->u_left > 640.0 || o->u_right > 640.0 || o->u_left < 0.0 || o->u_right < 0.0 ||
+                   o->v_left > 480.0 || o->v_left < 0.0;
+    }
+    TEST_ASSERT_TRUE(outside > 0 && outside < f.count);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
+    TEST_ASSERT_EQUAL_UINT64(outside, vl_get_counters(&est)->observations_implausible);
+}
+
+/* ------------------------------------------------------------ divergence */
+
+void test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_calibration(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    cfg.max_speed = 1e308; /* let the absurd velocity through to reach the numerical failure */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    clean_steps(&est, &cfg, T0, 3);
+    /* The 1e300 m/s: with landmarks in the window, integrating it overflows their covariance. */
+    TEST_ASSERT_TRUE(vl_window_size(&est) > 0);
+    vl_imu_sample_t absurd = imu_at(T0 + 3 * STEP, 1e300);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &absurd)); /* held, not yet integrated */
+    vl_imu_sample_t next = imu_at(T0 + 4 * STEP, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_RESET, vl_propagate(&est, &next));
+
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(1, c->divergence_resets);
+    TEST_ASSERT_EQUAL_UINT64(1, c->resets);
+    TEST_ASSERT_EQUAL_UINT64(0, c->timeline_changes);
+    TEST_ASSERT_EQUAL_MEMORY(&cfg.calibration, &est.cfg.calibration, sizeof(cfg.calibration));
+    TEST_ASSERT_EQUAL_DOUBLE(cfg.max_speed, est.cfg.max_speed);
+    vl_pose_t p;
+    get_pose(&est, &p); /* finite: vl_get_pose refuses otherwise */
+    TEST_ASSERT_EQUAL_DOUBLE(0.0, p.position[0]);
+    TEST_ASSERT_EQUAL_INT64(T0 + 4 * STEP, p.utime); /* the clock is kept */
+    TEST_ASSERT_EQUAL_UINT32(0, vl_get_state_flags(&est));
+
+    /* It tracks again from the next sample. */
+    clean_steps(&est, &cfg, T0 + 5 * STEP, 5);
+    TEST_ASSERT_EQUAL_UINT32(0, vl_get_state_flags(&est));
+    TEST_ASSERT_TRUE(vl_window_size(&est) > 0);
+}
+
+void test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed_out(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    clean_steps(&est, &cfg, T0, 3);
+    /* A negative variance: not positive semi-definite. */
+    est.P[(size_t)4 * VL_STATE_DIM_MAX + 4] = -1e-3;
+    vl_status_t a, b;
+    step(&est, &cfg, T0 + 3 * STEP, &a, &b);
+    TEST_ASSERT_EQUAL_INT(VL_RESET, a);
+    TEST_ASSERT_EQUAL_INT(VL_OK, b);
+
+    /* A correlation beyond 1 in the pose block, diagonal still positive. */
+    clean_steps(&est, &cfg, T0 + 4 * STEP, 2);
+    const double p00 = est.P[0], p11 = est.P[(size_t)1 * VL_STATE_DIM_MAX + 1];
+    TEST_ASSERT_TRUE(p00 > 0.0 && p11 > 0.0);
+    est.P[(size_t)1 * VL_STATE_DIM_MAX] = est.P[1] = 2.0 * sqrt(p00 * p11);
+    step(&est, &cfg, T0 + 6 * STEP, &a, &b);
+    TEST_ASSERT_EQUAL_INT(VL_RESET, a);
+
+    /* NaN in a landmark's variance, found after the frame that uses it. */
+    clean_steps(&est, &cfg, T0 + 7 * STEP, 3);
+    TEST_ASSERT_TRUE(vl_window_size(&est) > 0);
+    est.P[(size_t)VL_CORE_DIM * VL_STATE_DIM_MAX + VL_CORE_DIM] = NAN;
+    static vl_stereo_frame_t f;
+    make_frame(&cfg, &f, T0 + 10 * STEP);
+    TEST_ASSERT_EQUAL_INT(VL_RESET, vl_update(&est, &f));
+    TEST_ASSERT_EQUAL_UINT64(3, vl_get_counters(&est)->divergence_resets);
+
+    /* A NaN pose is never handed out, whatever put it there. */
+    est.p[1] = NAN;
+    vl_pose_t p;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NON_FINITE, vl_get_pose(&est, &p));
+}
+
+void test_frames_contradicting_the_state_frame_after_frame_reset_the_filter(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    cfg.adaptive_noise = 0; /* so the contradiction does not widen the noise until it passes */
+    cfg.divergence_frames = 6;
+    for (int pass = 0; pass < 2; ++pass) {
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+        clean_steps(&est, &cfg, T0, 3);
+        TEST_ASSERT_TRUE(vl_window_size(&est) >= 8);
+        int resets_at = -1;
+        for (int k = 3; k < 30 && resets_at < 0; ++k) {
+            const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+            static vl_stereo_frame_t f;
+            make_frame(&cfg, &f, T0 + k * STEP);
+            const double shift = (k % 2) ? 150.0 : -150.0; /* every track jumps 150 px, back and forth */
+            for (uint32_t i = 0; i < f.count; ++i) {
+                f.obs[i].u_left += shift;
+                f.obs[i].u_right += shift;
+            }
+            const vl_status_t st = vl_update(&est, &f);
+            if (st == VL_RESET) {
+                resets_at = k;
+            } else {
+                TEST_ASSERT_EQUAL_INT(VL_OK, st);
+            }
+        }
+        if (pass == 0) {
+            TEST_ASSERT_EQUAL_INT(3 + 6 - 1, resets_at); /* the sixth contradicting frame in a row */
+            TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->divergence_resets);
+            TEST_ASSERT_TRUE(vl_get_counters(&est)->landmarks_discarded > 0);
+        } else {
+            TEST_ASSERT_EQUAL_INT(-1, resets_at); /* divergence_frames = 0: the rule is off */
+            TEST_ASSERT_EQUAL_UINT64(0, vl_get_counters(&est)->divergence_resets);
+        }
+        cfg.divergence_frames = 0;
+    }
+}
+
+void test_vl_reset_keeps_configuration_and_counters(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    cfg.max_landmarks = 7;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_reset(NULL));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    clean_steps(&est, &cfg, T0, 3);
+    const uint64_t frames = vl_get_counters(&est)->frames_accepted;
+    const uint32_t window = vl_window_size(&est);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_reset(&est));
+    TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
+    TEST_ASSERT_EQUAL_UINT64(frames, vl_get_counters(&est)->frames_accepted);
+    TEST_ASSERT_EQUAL_UINT64(window, vl_get_counters(&est)->landmarks_discarded);
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->resets);
+    TEST_ASSERT_EQUAL_UINT32(7, est.cfg.max_landmarks);
+    /* Any time may start again: the clock went with the state. */
+    clean_steps(&est, &cfg, T0 - 100 * STEP, 3);
+}
+
+/* ------------------------------------------------------------ sensor silence */
+
+void test_frames_without_imu_are_not_propagated_with_a_stale_velocity(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    cfg.mode = VL_MODE_IMU_ONLY; /* the frames only move the clock here */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    for (int k = 0; k < 10; ++k) {
+        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 10.0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    }
+    /* The IMU falls silent at T0 + 0.9 s; frames go on for 10 s. */
+    static vl_stereo_frame_t f;
+    uint32_t refused = 0;
+    for (int k = 10; k < 110; ++k) {
+        make_frame(&cfg, &f, T0 + k * STEP);
+        const vl_status_t st = vl_update(&est, &f);
+        if (k * STEP - 9 * STEP <= 500000) {
+            TEST_ASSERT_EQUAL_INT(VL_OK, st); /* within max_imu_silence the held velocity still holds */
+            TEST_ASSERT_EQUAL_UINT32(0, vl_get_state_flags(&est));
+        } else {
+            TEST_ASSERT_EQUAL_INT(VL_ERR_IMU_SILENT, st);
+            TEST_ASSERT_EQUAL_UINT32(VL_STATE_IMU_SILENT, vl_get_state_flags(&est));
+            refused++;
+        }
+    }
+    vl_pose_t p;
+    get_pose(&est, &p);
+    TEST_ASSERT_DOUBLE_WITHIN(1e-6, 10.0 * 1.4, p.position[0]); /* 0.9 s driven + 0.5 s trusted, not 10.9 s */
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(refused, c->frames_imu_silent);
+    TEST_ASSERT_EQUAL_UINT64(1, c->imu_silences);
+
+    /* The IMU comes back: the silence is not integrated either, and tracking resumes. */
+    const vl_imu_sample_t back = imu_at(T0 + 110 * STEP, 2.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &back));
+    TEST_ASSERT_EQUAL_UINT32(0, vl_get_state_flags(&est));
+    get_pose(&est, &p);
+    TEST_ASSERT_DOUBLE_WITHIN(1e-6, 14.0, p.position[0]);
+    TEST_ASSERT_EQUAL_INT64(T0 + 110 * STEP, p.utime);
+    make_frame(&cfg, &f, T0 + 111 * STEP);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
+    get_pose(&est, &p);
+    TEST_ASSERT_DOUBLE_WITHIN(1e-6, 14.2, p.position[0]); /* the new velocity, 2 m/s for 0.1 s */
+    TEST_ASSERT_EQUAL_UINT64(1, c->imu_silences);
+}
+
+void test_imu_back_after_a_silence_without_frames_is_not_integrated(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = imu_at(T0, 10.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    s = imu_at(T0 + 3000000, 0.0); /* 3 s later, under max_time_jump */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    vl_pose_t p;
+    get_pose(&est, &p);
+    TEST_ASSERT_DOUBLE_WITHIN(1e-6, 5.0, p.position[0]); /* 0.5 s at 10 m/s, not 30 m */
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->imu_silences);
+    TEST_ASSERT_EQUAL_UINT64(0, vl_get_counters(&est)->frames_imu_silent);
+}
+
+int main(void)
+{
+    UNITY_BEGIN();
+    RUN_TEST(test_defaults_and_seed_preset_are_valid_and_limits_are_checked);
+    RUN_TEST(test_every_status_has_a_description);
+    RUN_TEST(test_time_jump_ahead_or_behind_is_refused_and_leaves_the_clock);
+    RUN_TEST(test_int64_max_sample_is_refused_and_the_drive_goes_on);
+    RUN_TEST(test_first_sample_at_int64_min_recovers_within_a_second);
+    RUN_TEST(test_first_sample_at_int64_max_recovers_within_a_second);
+    RUN_TEST(test_stream_shifted_an_hour_back_reinitializes_and_tracks_again);
+    RUN_TEST(test_stream_shifted_an_hour_ahead_reinitializes_and_tracks_again);
+    RUN_TEST(test_log_replayed_again_a_few_seconds_back_reinitializes);
+    RUN_TEST(test_stray_samples_and_a_stuck_clock_never_switch_timelines);
+    RUN_TEST(test_absurd_imu_samples_are_refused_and_counted);
+    RUN_TEST(test_pixels_outside_the_image_and_absurd_disparity_are_refused);
+    RUN_TEST(test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_calibration);
+    RUN_TEST(test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed_out);
+    RUN_TEST(test_frames_contradicting_the_state_frame_after_frame_reset_the_filter);
+    RUN_TEST(test_vl_reset_keeps_configuration_and_counters);
+    RUN_TEST(test_frames_without_imu_are_not_propagated_with_a_stale_velocity);
+    RUN_TEST(test_imu_back_after_a_silence_without_frames_is_not_integrated);
+    return UNITY_END();
+}
