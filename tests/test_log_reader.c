@@ -12,6 +12,7 @@
 #include "unity.h"
 #include "vl_log_reader.h"
 #include "vl_msg.h"
+#include "vl_trajectory_file.h"
 
 #define VL_TEST_PI 3.14159265358979323846
 
@@ -688,6 +689,41 @@ void test_vl_msg_from_pose_fills_both_messages(void)
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.angular_velocity, b.rotation_rate, 3);
 }
 
+void test_vl_trajectory_open_append_keeps_earlier_lines(void)
+{
+    static vl_trajectory_file_t t;
+    char err[256];
+    vl_pose_t pose;
+    memset(&pose, 0, sizeof(pose));
+    pose.rotation[0] = pose.rotation[4] = pose.rotation[8] = 1.0;
+    close_writer();
+    TEST_ASSERT_EQUAL_INT(0, truncate(g_path, 0));
+    /* A new (empty) file: no comment, exactly the lines. */
+    int appended = -1;
+    TEST_ASSERT_EQUAL_INT_MESSAGE(0, vl_trajectory_open_append(&t, g_path, "run 2", &appended, err, sizeof(err)), err);
+    TEST_ASSERT_EQUAL_INT(0, appended);
+    TEST_ASSERT_EQUAL_INT(0, vl_trajectory_write(&t, 1000000, &pose));
+    TEST_ASSERT_EQUAL_INT(0, vl_trajectory_close(&t));
+    /* A crash cut the next line: the restart ends it, marks the new run and keeps everything. */
+    FILE *f = fopen(g_path, "ab");
+    fputs("2.000000 0.1", f);
+    fclose(f);
+    TEST_ASSERT_EQUAL_INT(0, vl_trajectory_open_append(&t, g_path, "run 2", &appended, err, sizeof(err)));
+    TEST_ASSERT_EQUAL_INT(1, appended);
+    TEST_ASSERT_EQUAL_INT(0, vl_trajectory_write(&t, 3000000, &pose));
+    TEST_ASSERT_EQUAL_INT(0, vl_trajectory_close(&t));
+    static char text[1024];
+    f = fopen(g_path, "rb");
+    const size_t n = fread(text, 1, sizeof(text) - 1, f);
+    fclose(f);
+    text[n] = '\0';
+    TEST_ASSERT_EQUAL_STRING("1.000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 1.000000000\n"
+                             "2.000000 0.1\n"
+                             "# run 2\n"
+                             "3.000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 1.000000000\n",
+                             text);
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -709,6 +745,7 @@ int main(void)
     RUN_TEST(test_vl_log_reader_next_garbage_file);
     RUN_TEST(test_vl_log_reader_next_junk_between_events);
     RUN_TEST(test_vl_log_check_event_reports_each_problem);
+    RUN_TEST(test_vl_trajectory_open_append_keeps_earlier_lines);
     RUN_TEST(test_vl_msg_to_stereo_frame_clamps_bad_counts);
     RUN_TEST(test_vl_msg_frame_round_trip);
     RUN_TEST(test_vl_msg_calibration_round_trip);
