@@ -68,6 +68,7 @@ typedef struct {
     const char *calib_channel;
     const char *status_channel;
     long calib_period_ms;
+    long max_timeouts;
     const char *filter[MAX_FILTER];
     int num_filter;
     double speed;
@@ -140,8 +141,9 @@ static void usage(FILE *f)
             "  --lockstep            after each frame on the features channel, wait for the pose with\n"
             "                        that frame's utime and source FEATURES before going on; measures\n"
             "                        the end-to-end latency (frame published -> pose received)\n"
-            "  --timeout-ms N        lockstep and --wait-for: how long to wait (default 5000); after %d\n"
-            "                        lockstep timeouts in a row the replay gives up\n"
+            "  --timeout-ms N        lockstep and --wait-for: how long to wait (default 5000)\n"
+            "  --max-timeouts N      lockstep: give up after N timeouts in a row (default %d; 0 = never,\n"
+            "                        to see whether the daemon recovers from a fault)\n"
             "  --channels A,B,...    publish only these channels (default: every channel in the log)\n"
             "  --features-channel C  frames that lockstep waits for (default VISLAM_FEATURES)\n"
             "  --pose-channel C      poses counted and awaited (default VISLAM_POSE)\n"
@@ -185,6 +187,7 @@ static int parse_args(int argc, char **argv, options_t *o)
     o->calib_channel = "VISLAM_CALIB";
     o->status_channel = "VISLAM_STATUS";
     o->calib_period_ms = 1000;
+    o->max_timeouts = MAX_CONSECUTIVE_TIMEOUTS;
     static char filter_buf[1024];
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
@@ -212,7 +215,7 @@ static int parse_args(int argc, char **argv, options_t *o)
                                                  "--channels",     "--lcm-url",      "--pose-channel",
                                                  "--features-channel", "--wait-for", "--summary-json",
                                                  "--imu-channel",  "--calib-channel", "--status-channel",
-                                                 "--calib-period-ms"};
+                                                 "--calib-period-ms", "--max-timeouts"};
         int known = 0;
         for (size_t k = 0; k < sizeof(with_value) / sizeof(with_value[0]); ++k) {
             known |= strcmp(a, with_value[k]) == 0;
@@ -243,6 +246,13 @@ static int parse_args(int argc, char **argv, options_t *o)
             }
             *(strcmp(a, "--timeout-ms") == 0 ? &o->timeout_ms
                                               : (strcmp(a, "--linger-ms") == 0 ? &o->linger_ms : &o->calib_period_ms)) = n;
+        } else if (strcmp(a, "--max-timeouts") == 0) {
+            const long n = strtol(v, &end, 10);
+            if (end == v || *end != '\0' || errno != 0 || n < 0 || n > 1000000L) {
+                fprintf(stderr, "vislam-replay: %s %s: expected an integer in 0..1000000\n", a, v);
+                return -1;
+            }
+            o->max_timeouts = n;
         } else if (strcmp(a, "--imu-channel") == 0) {
             o->imu_channel = v;
         } else if (strcmp(a, "--calib-channel") == 0) {
@@ -719,7 +729,7 @@ int main(int argc, char **argv)
                 /* A daemon that restarted, or came late, may be waiting for the calibration. */
                 r->resend_calib = 1;
                 resend_calibration_if_asked(r);
-                if (++consecutive_timeouts >= MAX_CONSECUTIVE_TIMEOUTS) {
+                if (++consecutive_timeouts >= o->max_timeouts && o->max_timeouts > 0) {
                     fprintf(stderr, "vislam-replay: %d timeouts in a row; giving up\n", consecutive_timeouts);
                     incomplete = 1;
                     break;
