@@ -42,7 +42,6 @@ int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channe
         return -1;
     }
     memset(r, 0, sizeof(*r));
-    r->file_size = -1;
     vl_log_channels_t def;
     vl_log_channels_default(&def);
     const vl_log_channels_t *ch = channels != NULL ? channels : &def;
@@ -64,13 +63,10 @@ int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channe
         }
         return -1;
     }
-    if (fseek(log->f, 0, SEEK_END) == 0) {
-        r->file_size = ftell(log->f);
-    }
-    if (fseek(log->f, 0, SEEK_SET) != 0) {
+    if (vl_log_guard_init(&r->guard, log->f) != 0) {
         lcm_eventlog_destroy(log);
         if (err != NULL && err_len > 0) {
-            snprintf(err, err_len, "%s: cannot seek: %s", path, strerror(errno));
+            snprintf(err, err_len, "%s: cannot seek (the log must be a regular file): %s", path, strerror(errno));
         }
         return -1;
     }
@@ -107,13 +103,23 @@ vl_log_event_kind_t vl_log_reader_next(vl_log_reader_t *r, vl_log_event_t *ev)
     lcm_eventlog_t *log = (lcm_eventlog_t *)r->log;
 
     for (;;) {
-        long before = ftell(log->f);
-        lcm_eventlog_event_t *le = lcm_eventlog_read_next_event(log);
+        /* liblcm trusts the lengths it reads (an absurd one crashes it): the guard checks first. */
+        const vl_log_guard_result_t g = vl_log_guard_next(&r->guard, log->f);
+        if (g == VL_LOG_GUARD_DAMAGED) {
+            r->stats.corrupt = r->guard.damaged;
+            r->stats.bytes_skipped = r->guard.bytes_skipped;
+            snprintf(ev->error, sizeof(ev->error), "%s", r->guard.error);
+            ev->channel[0] = '\0';
+            ev->kind = VL_LOG_EVENT_CORRUPT;
+            return VL_LOG_EVENT_CORRUPT;
+        }
+        lcm_eventlog_event_t *le = g == VL_LOG_GUARD_EVENT ? lcm_eventlog_read_next_event(log) : NULL;
         if (le == NULL) {
-            /* LCM reports both a clean end and an unreadable event as NULL: tell them apart
-               by whether any bytes were left after the last good event. */
+            /* A checked event that liblcm still cannot read means the file changed under us. */
+            if (g == VL_LOG_GUARD_EVENT) {
+                r->guard.failed = 1;
+            }
             r->ended = 1;
-            r->truncated = r->file_size >= 0 && before >= 0 && before < r->file_size;
             return VL_LOG_EVENT_END;
         }
         r->stats.events++;
@@ -175,7 +181,7 @@ const vl_log_reader_stats_t *vl_log_reader_stats(const vl_log_reader_t *r)
 
 int vl_log_reader_truncated(const vl_log_reader_t *r)
 {
-    return r != NULL && r->truncated;
+    return r != NULL && (r->guard.truncated || r->guard.failed);
 }
 
 void vl_log_reader_close(vl_log_reader_t *r)

@@ -5,6 +5,10 @@
  * Events come back one at a time in log order. A payload that fails to decode
  * is reported as VL_LOG_EVENT_DECODE_ERROR and counted, and reading goes on
  * with the next event; events on other channels are skipped and counted.
+ * Every event header is checked before liblcm reads the event (vl_log_guard):
+ * a damaged spot (bad sync word, absurd or cut lengths, junk) is reported as
+ * VL_LOG_EVENT_CORRUPT with its file offset, counted, and reading resumes at
+ * the next valid event; a log cut inside an event is reported as truncated.
  * Decoding uses fixed-size storage inside the reader (the message types have
  * fixed-size arrays), so no allocation happens per event beyond LCM's own
  * event buffer.
@@ -16,6 +20,7 @@
 #include <stdint.h>
 
 #include "vislam/vislam.h"
+#include "vl_log_guard.h"
 
 #include "vislam_calibration_t.h"
 #include "vislam_imu_t.h"
@@ -46,7 +51,9 @@ typedef enum {
     VL_LOG_EVENT_IMU = 1,          /**< ev->imu is valid. */
     VL_LOG_EVENT_FRAME = 2,        /**< ev->frame is valid. */
     VL_LOG_EVENT_CALIBRATION = 3,  /**< ev->calibration and ev->calibration_utime are valid. */
-    VL_LOG_EVENT_DECODE_ERROR = 4  /**< A payload on a known channel did not decode; ev->error says why. */
+    VL_LOG_EVENT_DECODE_ERROR = 4, /**< A payload on a known channel did not decode; ev->error says why. */
+    VL_LOG_EVENT_CORRUPT = 5       /**< Bytes that are not a valid event (ev->error: file offset and what);
+                                        the next call resumes at the next valid event. */
 } vl_log_event_kind_t;
 
 /** One decoded event. Large (holds a full frame): keep it static or on the heap. */
@@ -59,7 +66,7 @@ typedef struct {
     vl_stereo_frame_t frame;         /**< kind == VL_LOG_EVENT_FRAME */
     vl_calibration_t calibration;    /**< kind == VL_LOG_EVENT_CALIBRATION */
     int64_t calibration_utime;       /**< us, stamp of the calibration message */
-    char error[160];                 /**< kind == VL_LOG_EVENT_DECODE_ERROR: what went wrong */
+    char error[256];                 /**< kind == VL_LOG_EVENT_DECODE_ERROR or _CORRUPT: what went wrong */
 } vl_log_event_t;
 
 /** Counts since vl_log_reader_open. */
@@ -70,6 +77,8 @@ typedef struct {
     uint64_t calibrations;   /**< calibration events decoded */
     uint64_t decode_errors;  /**< events on known channels that failed to decode */
     uint64_t skipped;        /**< events on other channels */
+    uint64_t corrupt;        /**< damaged spots (invalid event headers or junk), each skipped */
+    uint64_t bytes_skipped;  /**< bytes skipped over damaged spots */
 } vl_log_reader_stats_t;
 
 /** Reader state; members are private. */
@@ -78,8 +87,7 @@ typedef struct {
     char imu_channel[VL_LOG_CHANNEL_MAX];
     char features_channel[VL_LOG_CHANNEL_MAX];
     char calibration_channel[VL_LOG_CHANNEL_MAX];
-    long file_size;      /**< bytes, or -1 if unknown */
-    int truncated;       /**< the log ended before its last byte (corrupt or cut tail) */
+    vl_log_guard_t guard;  /**< header checks and resynchronization */
     int ended;
     vl_log_reader_stats_t stats;
     /* Decoding storage: the message types are fixed-size, so decode never allocates. */
@@ -109,7 +117,7 @@ vl_log_event_kind_t vl_log_reader_next(vl_log_reader_t *r, vl_log_event_t *ev);
 /** Counters since open. */
 const vl_log_reader_stats_t *vl_log_reader_stats(const vl_log_reader_t *r);
 
-/** Nonzero if reading stopped before the end of the file (a corrupt or cut event). */
+/** Nonzero if the file ends inside an event (a cut log), or reading it failed. */
 int vl_log_reader_truncated(const vl_log_reader_t *r);
 
 /** Closes the log; safe on a reader that failed to open or is already closed. */

@@ -39,6 +39,48 @@ int vl_trajectory_open(vl_trajectory_file_t *t, const char *path, char *err, siz
     return 0;
 }
 
+int vl_trajectory_open_append(vl_trajectory_file_t *t, const char *path, const char *note, int *appended, char *err,
+                              size_t err_len)
+{
+    memset(t, 0, sizeof(*t));
+    if (appended != NULL) {
+        *appended = 0;
+    }
+    t->f = fopen(path, "a+");
+    if (t->f == NULL) {
+        if (err != NULL && err_len > 0) {
+            snprintf(err, err_len, "cannot append to trajectory %s: %s", path, strerror(errno));
+        }
+        return -1;
+    }
+    setvbuf(t->f, t->buffer, _IOFBF, sizeof(t->buffer));
+    /* "a+" reads anywhere but always writes at the end. */
+    int bad = fseek(t->f, 0, SEEK_END) != 0;
+    const long size = bad ? -1 : ftell(t->f);
+    if (size > 0) {
+        int last = EOF;
+        bad = fseek(t->f, -1, SEEK_END) != 0 || (last = fgetc(t->f)) == EOF || fseek(t->f, 0, SEEK_END) != 0;
+        if (!bad && last != '\n') {
+            bad = fputc('\n', t->f) == EOF;
+        }
+        if (!bad) {
+            bad = fprintf(t->f, "# %s\n", note != NULL ? note : "a new run appends here") < 0 || fflush(t->f) != 0;
+        }
+        if (appended != NULL) {
+            *appended = 1;
+        }
+    }
+    if (bad || size < 0) {
+        if (err != NULL && err_len > 0) {
+            snprintf(err, err_len, "cannot append to trajectory %s: %s", path, strerror(errno));
+        }
+        fclose(t->f);
+        t->f = NULL;
+        return -1;
+    }
+    return 0;
+}
+
 int vl_trajectory_write(vl_trajectory_file_t *t, int64_t utime, const vl_pose_t *pose)
 {
     char line[VL_TRAJECTORY_LINE_MAX];

@@ -47,6 +47,19 @@ int vl_trajectory_format_line(char *buf, size_t len, int64_t utime, const vl_pos
  */
 int vl_trajectory_open(vl_trajectory_file_t *t, const char *path, char *err, size_t err_len);
 
+/**
+ * Opens @p path for appending, creating it if needed: a restarted daemon never truncates the
+ * trajectory of an earlier run. When the file already has content, a line cut by a crash is
+ * ended first, then one comment line ("# " + @p note + "\n") marks where this run starts; TUM
+ * readers (evo, tools/evaluate) skip '#' lines. A new or empty file gets no comment, so a single
+ * run's file is exactly what vl_trajectory_open would write.
+ * @param note what the comment says (e.g. the program and its pid); NULL for a generic one
+ * @param appended set to 1 if the file had content (may be NULL)
+ * @return 0, or -1 with a message in @p err
+ */
+int vl_trajectory_open_append(vl_trajectory_file_t *t, const char *path, const char *note, int *appended, char *err,
+                              size_t err_len);
+
 /** Appends one line and flushes it. 0, or -1 on a write error (also remembered for close). */
 int vl_trajectory_write(vl_trajectory_file_t *t, int64_t utime, const vl_pose_t *pose);
 

@@ -12,6 +12,7 @@
 #include "unity.h"
 #include "vl_log_reader.h"
 #include "vl_msg.h"
+#include "vl_trajectory_file.h"
 
 #define VL_TEST_PI 3.14159265358979323846
 
@@ -309,8 +310,260 @@ void test_vl_log_reader_next_cut_log_reports_truncation(void)
     open_reader(NULL);
     TEST_ASSERT_EQUAL_INT(VL_LOG_EVENT_IMU, vl_log_reader_next(&g_reader, &g_ev));
     TEST_ASSERT_EQUAL_INT64(1, g_ev.imu.utime);
+    TEST_ASSERT_EQUAL_INT(VL_LOG_EVENT_CORRUPT, vl_log_reader_next(&g_reader, &g_ev));
     TEST_ASSERT_EQUAL_INT(VL_LOG_EVENT_END, vl_log_reader_next(&g_reader, &g_ev));
     TEST_ASSERT_TRUE(vl_log_reader_truncated(&g_reader));
+}
+
+/* ---- damaged logs: every header is checked before liblcm reads the event ---- */
+
+/* Byte offset of event @p k (0-based) in a log of @p n IMU events at utimes 1..n, and the log's size. */
+static long g_offsets[16];
+static long g_size;
+
+static void write_imu_log(int n)
+{
+    TEST_ASSERT_TRUE(n <= 16);
+    for (int k = 0; k < n; ++k) {
+        vislam_imu_t imu = make_imu(k + 1);
+        g_offsets[k] = ftell(g_log->f);
+        write_imu(VL_CHANNEL_IMU, &imu);
+    }
+    close_writer();
+    FILE *f = fopen(g_path, "rb");
+    TEST_ASSERT_NOT_NULL(f);
+    fseek(f, 0, SEEK_END);
+    g_size = ftell(f);
+    fclose(f);
+}
+
+static void patch(long offset, const void *bytes, size_t n)
+{
+    FILE *f = fopen(g_path, "r+b");
+    TEST_ASSERT_NOT_NULL(f);
+    TEST_ASSERT_EQUAL_INT(0, fseek(f, offset, SEEK_SET));
+    TEST_ASSERT_TRUE(fwrite(bytes, 1, n, f) == n);
+    fclose(f);
+}
+
+static void write_file(const void *bytes, size_t n)
+{
+    if (g_log != NULL) {
+        close_writer();
+    }
+    FILE *f = fopen(g_path, "wb");
+    TEST_ASSERT_NOT_NULL(f);
+    TEST_ASSERT_TRUE(fwrite(bytes, 1, n, f) == n);
+    fclose(f);
+}
+
+static char g_last_error[256];
+
+/* Reads to the end; returns the IMU utimes seen (as a decimal-digit string) and counts the rest. */
+static void read_all(char *utimes, size_t len, int *corrupt_events)
+{
+    size_t used = 0;
+    utimes[0] = '\0';
+    *corrupt_events = 0;
+    for (int guard = 0; guard < 100; ++guard) {
+        vl_log_event_kind_t k = vl_log_reader_next(&g_reader, &g_ev);
+        if (k == VL_LOG_EVENT_END) {
+            return;
+        }
+        if (k == VL_LOG_EVENT_CORRUPT) {
+            (*corrupt_events)++;
+            TEST_ASSERT_NOT_NULL_MESSAGE(strstr(g_ev.error, "offset "), g_ev.error);
+            snprintf(g_last_error, sizeof(g_last_error), "%s", g_ev.error);
+        } else if (k == VL_LOG_EVENT_IMU && used + 2 < len) {
+            utimes[used++] = (char)('0' + g_ev.imu.utime % 10);
+            utimes[used] = '\0';
+        }
+    }
+    TEST_FAIL_MESSAGE("the reader never ended");
+}
+
+void test_vl_log_reader_next_length_0x7fffffff_is_reported_not_read(void)
+{
+    write_imu_log(5);
+    const unsigned char huge[4] = {0x7f, 0xff, 0xff, 0xff};
+    patch(g_offsets[2] + 24, huge, 4); /* data length of event 3 */
+    open_reader(NULL);
+    char seen[32];
+    int corrupt = 0;
+    /* The first damaged spot also says where and what. */
+    TEST_ASSERT_EQUAL_INT(VL_LOG_EVENT_IMU, vl_log_reader_next(&g_reader, &g_ev));
+    TEST_ASSERT_EQUAL_INT(VL_LOG_EVENT_IMU, vl_log_reader_next(&g_reader, &g_ev));
+    TEST_ASSERT_EQUAL_INT(VL_LOG_EVENT_CORRUPT, vl_log_reader_next(&g_reader, &g_ev));
+    char where[32];
+    snprintf(where, sizeof(where), "offset %ld:", g_offsets[2]);
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(g_ev.error, where), g_ev.error);
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(g_ev.error, "data length"), g_ev.error);
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(g_ev.error, "2147483647"), g_ev.error);
+    read_all(seen, sizeof(seen), &corrupt);
+    TEST_ASSERT_EQUAL_STRING("45", seen); /* resynchronized on event 4 */
+    TEST_ASSERT_EQUAL_INT(0, corrupt);
+    const vl_log_reader_stats_t *st = vl_log_reader_stats(&g_reader);
+    TEST_ASSERT_EQUAL_UINT64(1, st->corrupt);
+    TEST_ASSERT_EQUAL_UINT64((uint64_t)(g_offsets[3] - g_offsets[2]), st->bytes_skipped);
+    TEST_ASSERT_EQUAL_UINT64(4, st->imu);
+    TEST_ASSERT_FALSE(vl_log_reader_truncated(&g_reader));
+}
+
+void test_vl_log_reader_next_negative_and_huge_channel_lengths(void)
+{
+    write_imu_log(4);
+    const unsigned char neg[4] = {0xff, 0xff, 0xff, 0xf0};
+    const unsigned char big[4] = {0x00, 0x00, 0x10, 0x00};
+    patch(g_offsets[1] + 20, big, 4);
+    patch(g_offsets[2] + 24, neg, 4);
+    open_reader(NULL);
+    char seen[32];
+    int corrupt = 0;
+    read_all(seen, sizeof(seen), &corrupt);
+    /* Two damaged events in a row are one damaged spot. */
+    TEST_ASSERT_EQUAL_STRING("14", seen);
+    TEST_ASSERT_EQUAL_INT(1, corrupt);
+    TEST_ASSERT_EQUAL_UINT64(1, vl_log_reader_stats(&g_reader)->corrupt);
+}
+
+void test_vl_log_reader_next_bad_sync_resynchronizes(void)
+{
+    write_imu_log(4);
+    const unsigned char bad[1] = {0x00};
+    patch(g_offsets[2], bad, 1);
+    open_reader(NULL);
+    char seen[32];
+    int corrupt = 0;
+    read_all(seen, sizeof(seen), &corrupt);
+    /* Event 2 is dropped too (no sync word follows it, so its length cannot be trusted): one spot. */
+    TEST_ASSERT_EQUAL_STRING("14", seen);
+    TEST_ASSERT_EQUAL_INT(1, corrupt);
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(g_last_error, "no sync word after the event"), g_last_error);
+    TEST_ASSERT_FALSE(vl_log_reader_truncated(&g_reader));
+}
+
+void test_vl_log_reader_next_damaged_length_does_not_misframe(void)
+{
+    write_imu_log(3);
+    /* A plausible but wrong data length: one byte short. */
+    FILE *f = fopen(g_path, "rb");
+    unsigned char len[4];
+    fseek(f, g_offsets[1] + 24, SEEK_SET);
+    TEST_ASSERT_TRUE(fread(len, 1, 4, f) == 4);
+    fclose(f);
+    len[3]--;
+    patch(g_offsets[1] + 24, len, 4);
+    open_reader(NULL);
+    char seen[32];
+    int corrupt = 0;
+    read_all(seen, sizeof(seen), &corrupt);
+    TEST_ASSERT_EQUAL_STRING("13", seen);
+    TEST_ASSERT_EQUAL_INT(1, corrupt);
+    TEST_ASSERT_EQUAL_UINT64(0, vl_log_reader_stats(&g_reader)->decode_errors);
+}
+
+void test_vl_log_reader_next_cut_header(void)
+{
+    write_imu_log(3);
+    TEST_ASSERT_EQUAL_INT(0, truncate(g_path, g_offsets[2] + 10));
+    open_reader(NULL);
+    char seen[32];
+    int corrupt = 0;
+    read_all(seen, sizeof(seen), &corrupt);
+    TEST_ASSERT_EQUAL_STRING("12", seen);
+    TEST_ASSERT_EQUAL_INT(1, corrupt);
+    TEST_ASSERT_TRUE(vl_log_reader_truncated(&g_reader));
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(g_last_error, "header"), g_last_error);
+    TEST_ASSERT_EQUAL_UINT64(10, vl_log_reader_stats(&g_reader)->bytes_skipped);
+}
+
+void test_vl_log_reader_next_cut_payload(void)
+{
+    write_imu_log(3);
+    TEST_ASSERT_EQUAL_INT(0, truncate(g_path, g_size - 1));
+    open_reader(NULL);
+    char seen[32];
+    int corrupt = 0;
+    read_all(seen, sizeof(seen), &corrupt);
+    TEST_ASSERT_EQUAL_STRING("12", seen);
+    TEST_ASSERT_EQUAL_INT(1, corrupt);
+    TEST_ASSERT_TRUE(vl_log_reader_truncated(&g_reader));
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(g_last_error, "longer than what is left"), g_last_error);
+}
+
+void test_vl_log_reader_next_empty_file(void)
+{
+    close_writer();
+    open_reader(NULL);
+    TEST_ASSERT_EQUAL_INT(VL_LOG_EVENT_END, vl_log_reader_next(&g_reader, &g_ev));
+    const vl_log_reader_stats_t *st = vl_log_reader_stats(&g_reader);
+    TEST_ASSERT_EQUAL_UINT64(0, st->events);
+    TEST_ASSERT_EQUAL_UINT64(0, st->corrupt);
+    TEST_ASSERT_FALSE(vl_log_reader_truncated(&g_reader));
+}
+
+void test_vl_log_reader_next_garbage_file(void)
+{
+    static unsigned char junk[100000];
+    uint32_t x = 12345u;
+    for (size_t i = 0; i < sizeof(junk); ++i) {
+        x = x * 1103515245u + 12345u;
+        junk[i] = (unsigned char)(x >> 24);
+    }
+    /* Sync words inside the junk, whose headers are junk too: none may be taken for an event. */
+    const unsigned char sync[4] = {0xED, 0xA1, 0xDA, 0x01};
+    for (size_t i = 0; i + 4 < sizeof(junk); i += 997) {
+        memcpy(junk + i, sync, 4);
+    }
+    write_file(junk, sizeof(junk));
+    open_reader(NULL);
+    TEST_ASSERT_EQUAL_INT(VL_LOG_EVENT_CORRUPT, vl_log_reader_next(&g_reader, &g_ev));
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(g_ev.error, "offset 0:"), g_ev.error);
+    TEST_ASSERT_EQUAL_INT(VL_LOG_EVENT_END, vl_log_reader_next(&g_reader, &g_ev));
+    const vl_log_reader_stats_t *st = vl_log_reader_stats(&g_reader);
+    TEST_ASSERT_EQUAL_UINT64(0, st->events);
+    TEST_ASSERT_EQUAL_UINT64(1, st->corrupt);
+    TEST_ASSERT_EQUAL_UINT64(sizeof(junk), st->bytes_skipped);
+}
+
+void test_vl_log_reader_next_junk_between_events(void)
+{
+    write_imu_log(2);
+    /* Rebuild: event 1, 333 junk bytes, event 2. */
+    static unsigned char file[4096];
+    FILE *f = fopen(g_path, "rb");
+    const size_t n = fread(file, 1, sizeof(file), f);
+    fclose(f);
+    static unsigned char out[4096];
+    const size_t first = (size_t)g_offsets[1];
+    memcpy(out, file, first);
+    memset(out + first, 0xA5, 333);
+    memcpy(out + first + 333, file + first, n - first);
+    write_file(out, n + 333);
+    open_reader(NULL);
+    char seen[32];
+    int corrupt = 0;
+    read_all(seen, sizeof(seen), &corrupt);
+    /* Event 1 has no sync word after it: dropped with the junk. */
+    TEST_ASSERT_EQUAL_STRING("2", seen);
+    TEST_ASSERT_EQUAL_INT(1, corrupt);
+    TEST_ASSERT_EQUAL_UINT64(first + 333, vl_log_reader_stats(&g_reader)->bytes_skipped);
+}
+
+void test_vl_log_check_event_reports_each_problem(void)
+{
+    write_imu_log(1);
+    FILE *f = fopen(g_path, "rb");
+    TEST_ASSERT_NOT_NULL(f);
+    vl_log_header_t h;
+    TEST_ASSERT_EQUAL_INT(VL_LOG_CHECK_OK, vl_log_check_event(f, 0, g_size, &h));
+    TEST_ASSERT_EQUAL_INT64(1000, h.timestamp);
+    TEST_ASSERT_EQUAL_INT32((int32_t)strlen(VL_CHANNEL_IMU), h.channel_bytes);
+    TEST_ASSERT_EQUAL_INT(VL_LOG_CHECK_END, vl_log_check_event(f, g_size, g_size, &h));
+    TEST_ASSERT_EQUAL_INT(VL_LOG_CHECK_CUT_HEADER, vl_log_check_event(f, 0, 20, &h));
+    TEST_ASSERT_EQUAL_INT(VL_LOG_CHECK_CUT_EVENT, vl_log_check_event(f, 0, g_size - 1, &h));
+    TEST_ASSERT_EQUAL_INT(VL_LOG_CHECK_BAD_SYNC, vl_log_check_event(f, 1, g_size, &h));
+    fclose(f);
 }
 
 void test_vl_log_reader_open_missing_file_fails(void)
@@ -436,6 +689,41 @@ void test_vl_msg_from_pose_fills_both_messages(void)
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.angular_velocity, b.rotation_rate, 3);
 }
 
+void test_vl_trajectory_open_append_keeps_earlier_lines(void)
+{
+    static vl_trajectory_file_t t;
+    char err[256];
+    vl_pose_t pose;
+    memset(&pose, 0, sizeof(pose));
+    pose.rotation[0] = pose.rotation[4] = pose.rotation[8] = 1.0;
+    close_writer();
+    TEST_ASSERT_EQUAL_INT(0, truncate(g_path, 0));
+    /* A new (empty) file: no comment, exactly the lines. */
+    int appended = -1;
+    TEST_ASSERT_EQUAL_INT_MESSAGE(0, vl_trajectory_open_append(&t, g_path, "run 2", &appended, err, sizeof(err)), err);
+    TEST_ASSERT_EQUAL_INT(0, appended);
+    TEST_ASSERT_EQUAL_INT(0, vl_trajectory_write(&t, 1000000, &pose));
+    TEST_ASSERT_EQUAL_INT(0, vl_trajectory_close(&t));
+    /* A crash cut the next line: the restart ends it, marks the new run and keeps everything. */
+    FILE *f = fopen(g_path, "ab");
+    fputs("2.000000 0.1", f);
+    fclose(f);
+    TEST_ASSERT_EQUAL_INT(0, vl_trajectory_open_append(&t, g_path, "run 2", &appended, err, sizeof(err)));
+    TEST_ASSERT_EQUAL_INT(1, appended);
+    TEST_ASSERT_EQUAL_INT(0, vl_trajectory_write(&t, 3000000, &pose));
+    TEST_ASSERT_EQUAL_INT(0, vl_trajectory_close(&t));
+    static char text[1024];
+    f = fopen(g_path, "rb");
+    const size_t n = fread(text, 1, sizeof(text) - 1, f);
+    fclose(f);
+    text[n] = '\0';
+    TEST_ASSERT_EQUAL_STRING("1.000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 1.000000000\n"
+                             "2.000000 0.1\n"
+                             "# run 2\n"
+                             "3.000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 1.000000000\n",
+                             text);
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -447,6 +735,17 @@ int main(void)
     RUN_TEST(test_vl_log_reader_open_custom_channels);
     RUN_TEST(test_vl_log_reader_next_cut_log_reports_truncation);
     RUN_TEST(test_vl_log_reader_open_missing_file_fails);
+    RUN_TEST(test_vl_log_reader_next_length_0x7fffffff_is_reported_not_read);
+    RUN_TEST(test_vl_log_reader_next_negative_and_huge_channel_lengths);
+    RUN_TEST(test_vl_log_reader_next_bad_sync_resynchronizes);
+    RUN_TEST(test_vl_log_reader_next_damaged_length_does_not_misframe);
+    RUN_TEST(test_vl_log_reader_next_cut_header);
+    RUN_TEST(test_vl_log_reader_next_cut_payload);
+    RUN_TEST(test_vl_log_reader_next_empty_file);
+    RUN_TEST(test_vl_log_reader_next_garbage_file);
+    RUN_TEST(test_vl_log_reader_next_junk_between_events);
+    RUN_TEST(test_vl_log_check_event_reports_each_problem);
+    RUN_TEST(test_vl_trajectory_open_append_keeps_earlier_lines);
     RUN_TEST(test_vl_msg_to_stereo_frame_clamps_bad_counts);
     RUN_TEST(test_vl_msg_frame_round_trip);
     RUN_TEST(test_vl_msg_calibration_round_trip);

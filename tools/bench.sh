@@ -46,6 +46,7 @@ daemon_inner() {
     printf '%q ' "${replay_cmd[@]}"; echo "2>$prefix.replay.log"
     echo "kill -TERM \$vislamd_pid; wait"
   } >>"$cmds"
+  rm -f "$prefix.tum" # vislamd appends to an existing trajectory; each run starts afresh
   "${daemon_cmd[@]}" 2>"$prefix.vislamd.log" &
   daemon=$!
   "${replay_cmd[@]}" 2>"$prefix.replay.log"

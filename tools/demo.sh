@@ -41,6 +41,7 @@ fi
 run_lcm_part() {
   local url=$1
   local bin="$BUILD_DIR/bin"
+  rm -f "$OUT_DIR/trajectory.tum" # vislamd appends to an existing trajectory; this is a new run
   "$bin/vislamd" --lcm-url "$url" --trajectory "$OUT_DIR/trajectory.tum" 2>"$OUT_DIR/vislamd.log" &
   local daemon=$!
   local replay_rc=0

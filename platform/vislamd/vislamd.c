@@ -30,6 +30,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include <lcm/lcm.h>
 
@@ -178,7 +179,8 @@ static void usage(FILE *f)
             "  --lcm-url URL           LCM provider, e.g. udpm://239.255.76.67:7667?ttl=0\n"
             "                          (default: $LCM_DEFAULT_URL, else LCM's default)\n"
             "  --trajectory FILE       TUM trajectory, one line per accepted frame (vislam-run's lines),\n"
-            "                          flushed line by line\n"
+            "                          flushed line by line; appended to, never truncated: a restart\n"
+            "                          adds a '# ...' comment line and its run after the earlier one\n"
             "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
             "                          of the last %d IMU intervals; %d us until known)\n"
             "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
@@ -887,9 +889,18 @@ int main(int argc, char **argv)
     }
     if (d->opt.trajectory_path != NULL) {
         char err[512];
-        if (vl_trajectory_open(&d->trajectory, d->opt.trajectory_path, err, sizeof(err)) != 0) {
+        /* Append: a restart (after a crash or kill -9) must not destroy the earlier run's poses. */
+        char note[160];
+        int appended = 0;
+        snprintf(note, sizeof(note), "vislamd (pid %ld) restarted: the lines below are a new run",
+                 (long)getpid());
+        if (vl_trajectory_open_append(&d->trajectory, d->opt.trajectory_path, note, &appended, err, sizeof(err)) !=
+            0) {
             fprintf(stderr, "vislamd: %s\n", err);
             return EXIT_RUNTIME;
+        }
+        if (appended && !d->opt.quiet) {
+            fprintf(stderr, "vislamd: appending to the existing trajectory %s\n", d->opt.trajectory_path);
         }
         d->have_trajectory = 1;
     }

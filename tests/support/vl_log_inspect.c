@@ -1,5 +1,5 @@
 /*
- * vl_log_inspect LOG: summarizes what vislamd published, from a log recorded
+ * vl_log_inspect LOG [--after UTIME]: summarizes what vislamd published, from a log recorded
  * with lcm-logger, as "key value" lines for tests/test_daemon.sh:
  *
  *   channel.NAME N                 events per channel
@@ -10,15 +10,20 @@
  *   status.count / status.decode_errors / status.utime_increasing 1|0
  *   status.first.FIELD V / status.last.FIELD V   every field of the first and last vislam.status_t
  *   status.health_any V            the OR of every status' health bits
- *   pose.all_finite 1|0            every VISLAM_POSE position, orientation and covariance is finite
+ *   pose.non_finite N               poses with a NaN or infinite position, orientation or covariance
+ *   pose.features_after N           with --after: distinct utimes > UTIME of finite FEATURES poses
+ *   log.damaged N / log.truncated 0|1   damaged spots in the recorded log itself (vl_log_guard)
  */
 #include <inttypes.h>
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <stdio.h>
 #include <string.h>
 
 #include <lcm/lcm.h>
+
+#include "vl_log_guard.h"
 
 #include "bot_core_pose_t.h"
 #include "vislam_pose_t.h"
@@ -89,10 +94,30 @@ static void print_status(const char *which, const vislam_status_t *s)
 #undef FDBL
 }
 
+static int pose_finite(const vislam_pose_t *p)
+{
+    double sum = 0.0;
+    for (int i = 0; i < 3; ++i) {
+        sum += p->position[i];
+    }
+    for (int i = 0; i < 4; ++i) {
+        sum += p->orientation[i];
+    }
+    for (int i = 0; i < 36; ++i) {
+        sum += p->covariance[i];
+    }
+    return isfinite(sum);
+}
+
 int main(int argc, char **argv)
 {
-    if (argc != 2) {
-        fprintf(stderr, "usage: vl_log_inspect LOG\n");
+    int have_after = 0;
+    int64_t after = 0;
+    if (argc == 4 && strcmp(argv[2], "--after") == 0) {
+        have_after = 1;
+        after = strtoll(argv[3], NULL, 10);
+    } else if (argc != 2) {
+        fprintf(stderr, "usage: vl_log_inspect LOG [--after UTIME]\n");
         return 2;
     }
     lcm_eventlog_t *log = lcm_eventlog_create(argv[1], "r");
@@ -104,11 +129,26 @@ int main(int argc, char **argv)
     static bot_core_pose_t bot;
     static vislam_status_t status, first_status, last_status;
     uint64_t poses = 0, imu = 0, features = 0, pose_err = 0, bots = 0, bot_err = 0, statuses = 0, status_err = 0;
-    int sequence_ok = 1, bot_match = 1, status_increasing = 1, poses_finite = 1;
+    int sequence_ok = 1, bot_match = 1, status_increasing = 1;
     int32_t health_any = 0;
     int64_t last_features_utime = 0;
+    uint64_t non_finite = 0, features_after = 0;
+    int64_t last_after_utime = INT64_MIN;
+    vl_log_guard_t guard;
+    if (vl_log_guard_init(&guard, log->f) != 0) {
+        fprintf(stderr, "vl_log_inspect: cannot seek in %s\n", argv[1]);
+        return 2;
+    }
     lcm_eventlog_event_t *ev;
-    while ((ev = lcm_eventlog_read_next_event(log)) != NULL) {
+    for (;;) {
+        const vl_log_guard_result_t g = vl_log_guard_next(&guard, log->f);
+        if (g == VL_LOG_GUARD_DAMAGED) {
+            fprintf(stderr, "vl_log_inspect: %s: %s\n", argv[1], guard.error);
+            continue;
+        }
+        if (g == VL_LOG_GUARD_END || (ev = lcm_eventlog_read_next_event(log)) == NULL) {
+            break;
+        }
         count_channel(ev->channel);
         if (strcmp(ev->channel, "VISLAM_POSE") == 0) {
             if (vislam_pose_t_decode(ev->data, 0, ev->datalen, &pose) < 0) {
@@ -116,12 +156,6 @@ int main(int argc, char **argv)
             } else {
                 if (pose.sequence != (int64_t)poses) {
                     sequence_ok = 0;
-                }
-                for (int i = 0; i < 36; ++i) {
-                    if (!isfinite(pose.covariance[i]) || (i < 3 && !isfinite(pose.position[i])) ||
-                        (i < 4 && !isfinite(pose.orientation[i]))) {
-                        poses_finite = 0;
-                    }
                 }
                 if (poses < MAX_POSES) {
                     pose_utime[poses] = pose.utime;
@@ -133,6 +167,14 @@ int main(int argc, char **argv)
                 } else if (pose.source == VISLAM_POSE_T_SOURCE_FEATURES) {
                     features++;
                     last_features_utime = pose.utime;
+                }
+                const int finite = pose_finite(&pose);
+                non_finite += !finite;
+                /* Distinct utimes: a frame answered twice (two daemons, a repeat) counts once. */
+                if (have_after && finite && pose.source == VISLAM_POSE_T_SOURCE_FEATURES && pose.utime > after &&
+                    pose.utime != last_after_utime) {
+                    features_after++;
+                    last_after_utime = pose.utime;
                 }
             }
         } else if (strcmp(ev->channel, "POSE") == 0) {
@@ -167,12 +209,16 @@ int main(int argc, char **argv)
     printf("pose.count %" PRIu64 "\npose.imu %" PRIu64 "\npose.features %" PRIu64 "\npose.decode_errors %" PRIu64
            "\npose.sequence_ok %d\npose.last_features_utime %" PRId64 "\n",
            poses, imu, features, pose_err, sequence_ok, last_features_utime);
-    printf("pose.all_finite %d\n", poses_finite);
     printf("bot.count %" PRIu64 "\nbot.decode_errors %" PRIu64 "\nbot.matches_pose %d\n", bots, bot_err,
            bot_match && bots == poses);
     printf("status.count %" PRIu64 "\nstatus.decode_errors %" PRIu64 "\nstatus.utime_increasing %d\n", statuses,
            status_err, status_increasing);
     printf("status.health_any %d\n", (int)health_any);
+    printf("pose.non_finite %" PRIu64 "\n", non_finite);
+    if (have_after) {
+        printf("pose.features_after %" PRIu64 "\n", features_after);
+    }
+    printf("log.damaged %" PRIu64 "\nlog.truncated %d\n", guard.damaged, guard.truncated);
     if (statuses > 0) {
         print_status("first", &first_status);
         print_status("last", &last_status);

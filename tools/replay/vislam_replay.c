@@ -8,6 +8,15 @@
  * the deterministic mode, which also measures the end-to-end latency from
  * publishing the frame to receiving its pose. The schedule pauses while it
  * waits, so the spacing of later events is kept.
+ *
+ * Robustness: every event header is checked before liblcm reads it
+ * (vl_log_guard), so a damaged or cut log is reported and skipped, never a
+ * crash. The log's calibration is re-published every --calib-period-ms of log
+ * time, and at once when the daemon restarts or a lockstep pose does not come,
+ * as a latched message would be, so a daemon started late resumes. A pose is
+ * only counted as an answer when it answers an input this replay published
+ * (its utime and source), its sequence increases and its values are finite;
+ * anything else on the pose channel is counted as foreign.
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -26,13 +35,21 @@
 
 #include "vl_clock.h"
 #include "vl_latency.h"
+#include "vl_log_guard.h"
 #include "vl_signal.h"
 
+#include "vislam_imu_t.h"
 #include "vislam_pose_t.h"
+#include "vislam_status_t.h"
 #include "vislam_stereo_frame_t.h"
 
 #define EXIT_INCOMPLETE 1
 #define EXIT_USAGE 2
+#define EXIT_LOG_DAMAGED 3
+
+#define CALIB_MAX 4096          /* bytes of the largest calibration payload kept for re-publication */
+#define RECENT_INPUTS 1024      /* published inputs a pose may answer */
+#define REPORTS_MAX 5           /* damaged spots and foreign poses described on stderr; then only counted */
 
 #define MAX_FILTER 16
 #define MAX_CHANNELS 32
@@ -47,6 +64,11 @@ typedef struct {
     const char *features_channel;
     const char *wait_for;
     const char *summary_json;
+    const char *imu_channel;
+    const char *calib_channel;
+    const char *status_channel;
+    long calib_period_ms;
+    long max_timeouts;
     const char *filter[MAX_FILTER];
     int num_filter;
     double speed;
@@ -62,9 +84,31 @@ typedef struct {
     uint64_t sent;
 } channel_count_t;
 
+/* An input this replay published, which a pose may answer. */
+typedef struct {
+    int64_t utime;
+    int8_t source; /* VISLAM_POSE_T_SOURCE_* */
+} published_t;
+
 typedef struct {
     options_t opt;
     lcm_t *lcm;
+    vl_log_guard_t guard;
+    /* the log's latest calibration, re-published like a latched message */
+    uint8_t calib_buf[CALIB_MAX];
+    unsigned calib_len;
+    int have_calib;
+    int calib_too_large;
+    int64_t calib_published_log_utime;
+    int resend_calib;
+    uint64_t calib_resent;
+    /* pose provenance */
+    published_t recent[RECENT_INPUTS];
+    unsigned recent_next, recent_count;
+    int64_t last_sequence;
+    uint64_t poses_accepted, poses_foreign, poses_non_finite, daemon_restarts;
+    vislam_imu_t imu_msg;
+    vislam_status_t status_msg;
     /* sending */
     channel_count_t channels[MAX_CHANNELS];
     int num_channels;
@@ -97,14 +141,22 @@ static void usage(FILE *f)
             "  --lockstep            after each frame on the features channel, wait for the pose with\n"
             "                        that frame's utime and source FEATURES before going on; measures\n"
             "                        the end-to-end latency (frame published -> pose received)\n"
-            "  --timeout-ms N        lockstep and --wait-for: how long to wait (default 5000); after %d\n"
-            "                        lockstep timeouts in a row the replay gives up\n"
+            "  --timeout-ms N        lockstep and --wait-for: how long to wait (default 5000)\n"
+            "  --max-timeouts N      lockstep: give up after N timeouts in a row (default %d; 0 = never,\n"
+            "                        to see whether the daemon recovers from a fault)\n"
             "  --channels A,B,...    publish only these channels (default: every channel in the log)\n"
             "  --features-channel C  frames that lockstep waits for (default VISLAM_FEATURES)\n"
             "  --pose-channel C      poses counted and awaited (default VISLAM_POSE)\n"
             "  --wait-for C          before playing, wait until a message arrives on C (e.g.\n"
             "                        VISLAM_STATUS: the daemon publishes one as soon as it is up)\n"
             "  --linger-ms N         after the last event, keep counting poses for N ms (default 500)\n"
+            "  --imu-channel C       IMU samples whose poses count as answers (default VISLAM_IMU)\n"
+            "  --calib-channel C     the calibration re-published (default VISLAM_CALIB)\n"
+            "  --calib-period-ms N   re-publish the log's latest calibration every N ms of log time,\n"
+            "                        and at once after a daemon restart or a lockstep timeout, as a\n"
+            "                        latched message would be (default 1000; 0 = never)\n"
+            "  --status-channel C    the daemon's status: a pose count going back there is a daemon\n"
+            "                        restart, whose sequence numbers start again (default VISLAM_STATUS)\n"
             "  --lcm-url URL         LCM provider (default: $LCM_DEFAULT_URL, else LCM's default)\n"
             "  --summary-json FILE   also write the summary as JSON\n"
             "  --quiet               no progress line and no summary on stderr\n"
@@ -112,9 +164,14 @@ static void usage(FILE *f)
             "\n"
             "A progress line is shown when stderr is a terminal. The summary gives the messages sent,\n"
             "poses received and, in lockstep, the end-to-end latency percentiles.\n"
+            "A pose counts as an answer only if it answers an input this replay published (same utime\n"
+            "and source), its sequence increases and its values are finite; others are foreign.\n"
+            "Every event header is checked before it is read: damaged spots (bad sync word, absurd\n"
+            "length, junk) are reported with their file offset and skipped to the next valid event.\n"
             "Exit status: 0 the log was played (and, in lockstep, every expected pose came back);\n"
-            "1 incomplete (missing poses, publish errors, nothing on --wait-for, interrupted);\n"
-            "2 usage error, unreadable log or LCM unavailable.\n",
+            "1 incomplete (missing poses, foreign poses, publish errors, nothing on --wait-for,\n"
+            "interrupted); 2 usage error, unreadable log or LCM unavailable; 3 the log is damaged\n"
+            "(unreadable spots, cut inside an event, or no event at all).\n",
             MAX_CONSECUTIVE_TIMEOUTS);
 }
 
@@ -126,6 +183,11 @@ static int parse_args(int argc, char **argv, options_t *o)
     o->linger_ms = 500;
     o->pose_channel = "VISLAM_POSE";
     o->features_channel = "VISLAM_FEATURES";
+    o->imu_channel = "VISLAM_IMU";
+    o->calib_channel = "VISLAM_CALIB";
+    o->status_channel = "VISLAM_STATUS";
+    o->calib_period_ms = 1000;
+    o->max_timeouts = MAX_CONSECUTIVE_TIMEOUTS;
     static char filter_buf[1024];
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
@@ -151,7 +213,9 @@ static int parse_args(int argc, char **argv, options_t *o)
         }
         static const char *const with_value[] = {"--speed",        "--timeout-ms",   "--linger-ms",
                                                  "--channels",     "--lcm-url",      "--pose-channel",
-                                                 "--features-channel", "--wait-for", "--summary-json"};
+                                                 "--features-channel", "--wait-for", "--summary-json",
+                                                 "--imu-channel",  "--calib-channel", "--status-channel",
+                                                 "--calib-period-ms", "--max-timeouts"};
         int known = 0;
         for (size_t k = 0; k < sizeof(with_value) / sizeof(with_value[0]); ++k) {
             known |= strcmp(a, with_value[k]) == 0;
@@ -173,13 +237,28 @@ static int parse_args(int argc, char **argv, options_t *o)
                 fprintf(stderr, "vislam-replay: --speed %s: expected a number > 0\n", v);
                 return -1;
             }
-        } else if (strcmp(a, "--timeout-ms") == 0 || strcmp(a, "--linger-ms") == 0) {
+        } else if (strcmp(a, "--timeout-ms") == 0 || strcmp(a, "--linger-ms") == 0 ||
+                   strcmp(a, "--calib-period-ms") == 0) {
             const long n = strtol(v, &end, 10);
             if (end == v || *end != '\0' || errno != 0 || n < 0 || n > 3600000L) {
                 fprintf(stderr, "vislam-replay: %s %s: expected an integer in 0..3600000\n", a, v);
                 return -1;
             }
-            *(strcmp(a, "--timeout-ms") == 0 ? &o->timeout_ms : &o->linger_ms) = n;
+            *(strcmp(a, "--timeout-ms") == 0 ? &o->timeout_ms
+                                              : (strcmp(a, "--linger-ms") == 0 ? &o->linger_ms : &o->calib_period_ms)) = n;
+        } else if (strcmp(a, "--max-timeouts") == 0) {
+            const long n = strtol(v, &end, 10);
+            if (end == v || *end != '\0' || errno != 0 || n < 0 || n > 1000000L) {
+                fprintf(stderr, "vislam-replay: %s %s: expected an integer in 0..1000000\n", a, v);
+                return -1;
+            }
+            o->max_timeouts = n;
+        } else if (strcmp(a, "--imu-channel") == 0) {
+            o->imu_channel = v;
+        } else if (strcmp(a, "--calib-channel") == 0) {
+            o->calib_channel = v;
+        } else if (strcmp(a, "--status-channel") == 0) {
+            o->status_channel = v;
         } else if (strcmp(a, "--channels") == 0) {
             snprintf(filter_buf, sizeof(filter_buf), "%s", v);
             o->num_filter = 0;
@@ -253,6 +332,52 @@ static void count_sent(replay_t *r, const char *channel)
 
 /* ---- receiving ---- */
 
+static void remember_input(replay_t *r, int64_t utime, int8_t source)
+{
+    r->recent[r->recent_next].utime = utime;
+    r->recent[r->recent_next].source = source;
+    r->recent_next = (r->recent_next + 1) % RECENT_INPUTS;
+    if (r->recent_count < RECENT_INPUTS) {
+        r->recent_count++;
+    }
+}
+
+static int answers_an_input(const replay_t *r, int64_t utime, int8_t source)
+{
+    for (unsigned i = 0; i < r->recent_count; ++i) {
+        if (r->recent[i].utime == utime && r->recent[i].source == source) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
+static int pose_finite(const vislam_pose_t *p)
+{
+    /* One sum: any NaN or infinity makes it non-finite (finite values this large do not occur). */
+    double sum = 0.0;
+    for (int i = 0; i < 3; ++i) {
+        sum += p->position[i] + p->linear_velocity[i] + p->angular_velocity[i];
+    }
+    for (int i = 0; i < 4; ++i) {
+        sum += p->orientation[i];
+    }
+    for (int i = 0; i < 36; ++i) {
+        sum += p->covariance[i];
+    }
+    return isfinite(sum);
+}
+
+static void report_foreign(replay_t *r, const char *why)
+{
+    r->poses_foreign++;
+    if (r->poses_foreign <= REPORTS_MAX) {
+        fprintf(stderr, "vislam-replay: foreign pose on %s (utime %" PRId64 ", source %d, sequence %" PRId64 "): %s%s\n",
+                r->opt.pose_channel, r->pose_msg.utime, (int)r->pose_msg.source, r->pose_msg.sequence, why,
+                r->poses_foreign == REPORTS_MAX ? " (further ones only counted)" : "");
+    }
+}
+
 static void on_pose(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
 {
     (void)channel;
@@ -260,18 +385,52 @@ static void on_pose(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
     const int64_t now = vl_clock_monotonic_us();
     if (vislam_pose_t_decode(rbuf->data, 0, (int)rbuf->data_size, &r->pose_msg) < 0) {
         r->pose_decode_errors++;
+        r->poses_foreign++;
         return;
     }
     r->poses++;
-    if (r->pose_msg.source == VISLAM_POSE_T_SOURCE_FEATURES) {
+    const vislam_pose_t *m = &r->pose_msg;
+    if (m->source == VISLAM_POSE_T_SOURCE_FEATURES) {
         r->poses_features++;
-    } else if (r->pose_msg.source == VISLAM_POSE_T_SOURCE_IMU) {
+    } else if (m->source == VISLAM_POSE_T_SOURCE_IMU) {
         r->poses_imu++;
     }
-    if (r->waiting && !r->matched && r->pose_msg.source == VISLAM_POSE_T_SOURCE_FEATURES &&
-        r->pose_msg.utime == r->expected_utime) {
+    if (!pose_finite(m)) {
+        r->poses_non_finite++;
+        report_foreign(r, "non-finite values");
+        return;
+    }
+    if (!answers_an_input(r, m->utime, m->source)) {
+        report_foreign(r, "answers no input this replay published");
+        return;
+    }
+    if (m->sequence <= r->last_sequence) {
+        report_foreign(r, "sequence not increasing");
+        return;
+    }
+    r->last_sequence = m->sequence;
+    r->poses_accepted++;
+    if (r->waiting && !r->matched && m->source == VISLAM_POSE_T_SOURCE_FEATURES && m->utime == r->expected_utime) {
         r->matched = 1;
         vl_latency_record(&r->latency, now - r->publish_mono_us);
+    }
+}
+
+/* The daemon's pose count going back means a new daemon: its sequence numbers start again, and
+   it needs the calibration the log sent once. */
+static void on_status(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    (void)channel;
+    replay_t *r = (replay_t *)user;
+    if (vislam_status_t_decode(rbuf->data, 0, (int)rbuf->data_size, &r->status_msg) < 0) {
+        return;
+    }
+    if (r->status_msg.poses_out <= r->last_sequence) {
+        r->daemon_restarts++;
+        r->last_sequence = r->status_msg.poses_out - 1;
+        r->resend_calib = 1;
+        fprintf(stderr, "vislam-replay: the daemon restarted (its pose count went back to %" PRId64 ")\n",
+                r->status_msg.poses_out);
     }
 }
 
@@ -280,6 +439,23 @@ static void on_wait_for(const lcm_recv_buf_t *rbuf, const char *channel, void *u
     (void)rbuf;
     (void)channel;
     ((replay_t *)user)->saw_wait_for = 1;
+}
+
+static void publish_calibration(replay_t *r)
+{
+    if (lcm_publish(r->lcm, r->opt.calib_channel, r->calib_buf, r->calib_len) != 0) {
+        r->publish_errors++;
+    }
+    r->calib_resent++;
+}
+
+/* A re-publication asked for by a restart or a timeout, if there is a calibration to send. */
+static void resend_calibration_if_asked(replay_t *r)
+{
+    if (r->resend_calib && r->have_calib && r->opt.calib_period_ms > 0) {
+        publish_calibration(r);
+    }
+    r->resend_calib = 0;
 }
 
 /* Handles whatever has arrived, without blocking. */
@@ -304,6 +480,7 @@ static int wait_until_flag(replay_t *r, const int *flag, int64_t deadline_us)
         }
         const int ms = (int)((left + 999) / 1000);
         lcm_handle_timeout(r->lcm, ms > 100 ? 100 : ms);
+        resend_calibration_if_asked(r);
     }
     return *flag;
 }
@@ -335,6 +512,14 @@ static void print_summary(const replay_t *r, double wall_s, int interrupted)
     fprintf(stderr, "  poses received on %s: %" PRIu64 " (imu %" PRIu64 ", features %" PRIu64 ")%s\n",
             r->opt.pose_channel, r->poses, r->poses_imu, r->poses_features,
             r->pose_decode_errors != 0 ? " plus undecodable ones" : "");
+    fprintf(stderr, "  answers accepted %" PRIu64 ", foreign poses %" PRIu64 " (non-finite %" PRIu64
+                    "), daemon restarts %" PRIu64 ", calibrations re-published %" PRIu64 "\n",
+            r->poses_accepted, r->poses_foreign, r->poses_non_finite, r->daemon_restarts, r->calib_resent);
+    if (vl_log_guard_damaged(&r->guard) || r->guard.events == 0) {
+        fprintf(stderr, "  log damaged: %" PRIu64 " unreadable spot(s), %" PRIu64 " bytes skipped, %s%s\n",
+                r->guard.damaged, r->guard.bytes_skipped, r->guard.truncated ? "cut inside an event" : "not cut",
+                r->guard.events == 0 ? ", no event at all" : "");
+    }
     if (r->opt.lockstep) {
         fprintf(stderr, "  lockstep: %" PRIu64 " frames, %" PRIu64 " poses came back, %" PRIu64 " missing\n",
                 r->expected, r->returned, r->missing);
@@ -357,6 +542,17 @@ static int write_json(const replay_t *r, double wall_s, int interrupted)
     fprintf(f, "  \"poses_received\": %" PRIu64 ",\n  \"poses_imu\": %" PRIu64 ",\n  \"poses_features\": %" PRIu64
                ",\n",
             r->poses, r->poses_imu, r->poses_features);
+    fprintf(f,
+            "  \"poses_accepted\": %" PRIu64 ",\n  \"poses_foreign\": %" PRIu64 ",\n  \"poses_non_finite\": %" PRIu64
+            ",\n  \"pose_decode_errors\": %" PRIu64 ",\n  \"daemon_restarts\": %" PRIu64
+            ",\n  \"calibrations_resent\": %" PRIu64 ",\n",
+            r->poses_accepted, r->poses_foreign, r->poses_non_finite, r->pose_decode_errors, r->daemon_restarts,
+            r->calib_resent);
+    fprintf(f,
+            "  \"log_events\": %" PRIu64 ",\n  \"log_damaged\": %" PRIu64 ",\n  \"log_bytes_skipped\": %" PRIu64
+            ",\n  \"log_truncated\": %s,\n  \"log_read_failed\": %s,\n",
+            r->guard.events, r->guard.damaged, r->guard.bytes_skipped, r->guard.truncated ? "true" : "false",
+            r->guard.failed ? "true" : "false");
     fprintf(f, "  \"lockstep\": %s,\n  \"frames_expected\": %" PRIu64 ",\n  \"frames_returned\": %" PRIu64
                ",\n  \"frames_missing\": %" PRIu64 ",\n",
             r->opt.lockstep ? "true" : "false", r->expected, r->returned, r->missing);
@@ -394,6 +590,12 @@ int main(int argc, char **argv)
     }
     struct stat st;
     const long log_size = stat(o->log_path, &st) == 0 ? (long)st.st_size : -1;
+    if (vl_log_guard_init(&r->guard, log->f) != 0) {
+        fprintf(stderr, "vislam-replay: cannot seek in %s (the log must be a regular file)\n", o->log_path);
+        lcm_eventlog_destroy(log);
+        return EXIT_USAGE;
+    }
+    r->last_sequence = -1;
 
     if (vl_signal_install() != 0) {
         fprintf(stderr, "vislam-replay: cannot install signal handlers: %s\n", strerror(errno));
@@ -405,6 +607,7 @@ int main(int argc, char **argv)
         return EXIT_USAGE;
     }
     lcm_subscribe(r->lcm, o->pose_channel, on_pose, r);
+    lcm_subscribe(r->lcm, o->status_channel, on_status, r);
 
     int incomplete = 0;
     if (o->wait_for != NULL) {
@@ -426,7 +629,22 @@ int main(int argc, char **argv)
     int have_first = 0;
     int consecutive_timeouts = 0;
     lcm_eventlog_event_t *ev;
-    while (!vl_signal_stop_requested() && (ev = lcm_eventlog_read_next_event(log)) != NULL) {
+    while (!vl_signal_stop_requested()) {
+        /* liblcm trusts the lengths it reads (an absurd one crashes it): the guard checks first. */
+        const vl_log_guard_result_t gr = vl_log_guard_next(&r->guard, log->f);
+        if (gr == VL_LOG_GUARD_DAMAGED) {
+            if (r->guard.damaged <= REPORTS_MAX) {
+                fprintf(stderr, "%svislam-replay: %s: %s\n", show_progress ? "\n" : "", o->log_path, r->guard.error);
+            }
+            continue;
+        }
+        if (gr == VL_LOG_GUARD_END) {
+            break;
+        }
+        if ((ev = lcm_eventlog_read_next_event(log)) == NULL) {
+            r->guard.failed = 1; /* the file changed under us */
+            break;
+        }
         r->events_read++;
         if (!channel_selected(o, ev->channel)) {
             r->filtered++;
@@ -450,15 +668,42 @@ int main(int argc, char **argv)
                 break;
             }
         }
-        const int is_frame = o->lockstep && strcmp(ev->channel, o->features_channel) == 0;
+        /* The latest calibration, re-published every period of log time like a latched message. */
+        const int is_calib = strcmp(ev->channel, o->calib_channel) == 0;
+        if (is_calib) {
+            if (ev->datalen >= 0 && (unsigned)ev->datalen <= sizeof(r->calib_buf)) {
+                memcpy(r->calib_buf, ev->data, (size_t)ev->datalen);
+                r->calib_len = (unsigned)ev->datalen;
+                r->have_calib = 1;
+            } else if (!r->calib_too_large) {
+                r->calib_too_large = 1;
+                fprintf(stderr, "vislam-replay: calibration event of %d bytes is too large to re-publish\n",
+                        (int)ev->datalen);
+            }
+            r->calib_published_log_utime = ev->timestamp;
+        } else if (r->have_calib && o->calib_period_ms > 0 &&
+                   (ev->timestamp - r->calib_published_log_utime >= o->calib_period_ms * 1000 ||
+                    ev->timestamp < r->calib_published_log_utime)) {
+            publish_calibration(r);
+            r->calib_published_log_utime = ev->timestamp;
+        }
+        resend_calibration_if_asked(r);
+        const int is_frame_channel = strcmp(ev->channel, o->features_channel) == 0;
+        const int is_frame = o->lockstep && is_frame_channel;
         int64_t frame_utime = 0;
-        if (is_frame) {
+        if (is_frame_channel) {
             if (vislam_stereo_frame_t_decode(ev->data, 0, ev->datalen, &r->frame_msg) < 0) {
-                fprintf(stderr, "vislam-replay: event %" PRId64 " on %s is not a vislam.stereo_frame_t; not awaited\n",
-                        ev->eventnum, ev->channel);
+                if (o->lockstep) {
+                    fprintf(stderr, "vislam-replay: event %" PRId64 " on %s is not a vislam.stereo_frame_t; not awaited\n",
+                            ev->eventnum, ev->channel);
+                }
             } else {
                 frame_utime = r->frame_msg.utime;
+                remember_input(r, frame_utime, VISLAM_POSE_T_SOURCE_FEATURES);
             }
+        } else if (strcmp(ev->channel, o->imu_channel) == 0 &&
+                   vislam_imu_t_decode(ev->data, 0, ev->datalen, &r->imu_msg) >= 0) {
+            remember_input(r, r->imu_msg.utime, VISLAM_POSE_T_SOURCE_IMU);
         }
         r->publish_mono_us = vl_clock_monotonic_us();
         if (is_frame) {
@@ -481,7 +726,10 @@ int main(int argc, char **argv)
                 r->missing++;
                 fprintf(stderr, "%svislam-replay: no pose for the frame at utime %" PRId64 " within %ld ms\n",
                         show_progress ? "\n" : "", frame_utime, o->timeout_ms);
-                if (++consecutive_timeouts >= MAX_CONSECUTIVE_TIMEOUTS) {
+                /* A daemon that restarted, or came late, may be waiting for the calibration. */
+                r->resend_calib = 1;
+                resend_calibration_if_asked(r);
+                if (++consecutive_timeouts >= o->max_timeouts && o->max_timeouts > 0) {
                     fprintf(stderr, "vislam-replay: %d timeouts in a row; giving up\n", consecutive_timeouts);
                     incomplete = 1;
                     break;
@@ -516,7 +764,23 @@ int main(int argc, char **argv)
     }
     lcm_destroy(r->lcm);
     lcm_eventlog_destroy(log);
-    if (interrupted || r->publish_errors != 0 || r->missing != 0 || incomplete) {
+    /* Said even with --quiet: a damaged log or someone else's poses must not pass unnoticed. */
+    const int damaged = vl_log_guard_damaged(&r->guard) || r->guard.events == 0;
+    if (damaged && !interrupted) {
+        fprintf(stderr,
+                "vislam-replay: %s is damaged: %" PRIu64 " unreadable spot(s) (%" PRIu64 " bytes skipped)%s%s%s\n",
+                o->log_path, r->guard.damaged, r->guard.bytes_skipped, r->guard.truncated ? ", cut inside an event" : "",
+                r->guard.failed ? ", a read failed" : "", r->guard.events == 0 ? ", no event at all" : "");
+    }
+    if (r->poses_foreign != 0) {
+        fprintf(stderr, "vislam-replay: %" PRIu64 " foreign pose(s) on %s (%" PRIu64 " non-finite): not answers to this "
+                        "replay's inputs\n",
+                r->poses_foreign, o->pose_channel, r->poses_non_finite);
+    }
+    if (damaged && !interrupted) {
+        return EXIT_LOG_DAMAGED;
+    }
+    if (interrupted || r->publish_errors != 0 || r->missing != 0 || r->poses_foreign != 0 || incomplete) {
         return EXIT_INCOMPLETE;
     }
     return 0;

@@ -23,6 +23,10 @@
 #include "vl_trajectory_file.h"
 
 #define EXIT_USAGE 2
+#define EXIT_LOG_DAMAGED 3
+
+/* Damage reports printed before only the counts are kept. */
+#define DAMAGE_REPORTS 5
 
 /* Statuses run from VL_ERR_CAPACITY (-7) to VL_FRAME_TRUNCATED (1). */
 #define STATUS_MIN ((int)VL_STATUS_MIN)
@@ -159,7 +163,12 @@ static void usage(FILE *f)
             "  --print-config       print the effective configuration (INI) to stdout and exit\n"
             "  --help               this text\n"
             "\n"
-            "Exit status: 0 done, 1 I/O error or no frame processed, 2 usage or configuration error.\n",
+            "Every event header is checked before it is read: a damaged spot (bad sync word, absurd\n"
+            "length, junk) is reported with its file offset and skipped to the next valid event.\n"
+            "\n"
+            "Exit status: 0 done, 1 I/O error or no frame processed, 2 usage or configuration error,\n"
+            "3 the log is damaged (unreadable spots, a cut end, payloads that do not decode, or no\n"
+            "event at all); the outputs then hold every event that could be read.\n",
             VL_MAX_LANDMARKS);
 }
 
@@ -440,6 +449,8 @@ static size_t run_counter_list(const run_stats_t *r, const vl_log_reader_stats_t
     RUN_COUNT("log_calibrations", rs->calibrations);
     RUN_COUNT("log_decode_errors", rs->decode_errors);
     RUN_COUNT("log_skipped_channels", rs->skipped);
+    RUN_COUNT("log_corrupt", rs->corrupt);
+    RUN_COUNT("log_bytes_skipped", rs->bytes_skipped);
     RUN_COUNT("log_truncated", truncated);
     RUN_COUNT("imu_processed", r->imu_processed);
     RUN_COUNT("frames_processed", r->frames_processed);
@@ -747,8 +758,15 @@ int main(int argc, char **argv)
         }
         case VL_LOG_EVENT_DECODE_ERROR: {
             const vl_log_reader_stats_t *rs = vl_log_reader_stats(&reader);
-            if (rs->decode_errors <= 5) {
+            if (rs->decode_errors <= DAMAGE_REPORTS) {
                 fprintf(stderr, "vislam-run: %s\n", ev.error);
+            }
+            break;
+        }
+        case VL_LOG_EVENT_CORRUPT: {
+            const vl_log_reader_stats_t *rs = vl_log_reader_stats(&reader);
+            if (rs->corrupt <= DAMAGE_REPORTS) {
+                fprintf(stderr, "vislam-run: %s: %s\n", o.log_path, ev.error);
             }
             break;
         }
@@ -835,7 +853,7 @@ int main(int argc, char **argv)
             }
         }
         if (truncated) {
-            fprintf(stderr, "  warning: the log ends with an unreadable event (cut or corrupt)\n");
+            fprintf(stderr, "  warning: the log ends inside an event (cut)\n");
         }
         if (logger.suppressed != 0) {
             fprintf(stderr, "  core log lines suppressed by the rate limit: %llu\n",
@@ -852,6 +870,16 @@ int main(int argc, char **argv)
         }
     }
 
+    /* Said even with --quiet: a damaged log must not pass for a clean one. */
+    const int damaged = truncated || rs->corrupt != 0 || rs->decode_errors != 0 || rs->events == 0;
+    if (damaged) {
+        fprintf(stderr,
+                "vislam-run: %s is damaged: %llu unreadable spot(s) (%llu bytes skipped), %llu payload(s) that do "
+                "not decode, %s%s\n",
+                o.log_path, (unsigned long long)rs->corrupt, (unsigned long long)rs->bytes_skipped,
+                (unsigned long long)rs->decode_errors, truncated ? "cut inside an event" : "not cut",
+                rs->events == 0 ? "; no event at all (empty or not an LCM log)" : "");
+    }
     vl_log_reader_close(&reader);
     free(map.points);
     free(t_update.us);
@@ -860,6 +888,9 @@ int main(int argc, char **argv)
 
     if (io_error) {
         return 1;
+    }
+    if (damaged) {
+        return EXIT_LOG_DAMAGED;
     }
     if (run.trajectory_lines == 0) {
         fprintf(stderr, "vislam-run: no frame could be processed\n");
