@@ -16,9 +16,14 @@
 #   empty, junk-file   an empty log, a log of random bytes
 #   restart      kill -9 of the daemon mid-run, a new daemon (no calibration in its config)
 #   foreign      a stray process answering every frame with NaN poses on VISLAM_POSE
-# Rows of the estimator's own checks (time jumps, plausibility, IMU silence), run with
-# VL_FAULTS_CORE=1: they are expected to fail until the core handles them.
-#   corrupt imu-hour imu-max imu-min shift twice velocity no-imu
+# Rows of the estimator's own checks (time jumps, new timelines, plausibility, IMU silence):
+#   corrupt      10 corrupted copies of events (bit flips, truncation, junk, NaN bytes)
+#   imu-hour, imu-max   one IMU sample stamped 1 h ahead, or INT64_MAX
+#   imu-min      the first IMU sample stamped INT64_MIN
+#   shift        the stream from step 100 on shifted 1 h back
+#   twice        the log played twice into one daemon
+#   velocity     one IMU sample at 1e300 m/s
+#   no-imu       50 steps without IMU
 # Exit 77 (CTest skip) when a private network namespace, lcm-logger or the project's Python is
 # unavailable.
 set -euo pipefail
@@ -301,37 +306,39 @@ check "replay: reports them" grep -q 'foreign pose' "$OUT/fp.replay.err"
 check "daemon exits 0, its trajectory equals vislam-run's (undisturbed)" \
   test "$DAEMON_RC" = 0 -a -z "$(cmp "$OUT/fp.tum" "$OUT/offline.tum" 2>&1)"
 
-# ---- the estimator's rows (enabled with VL_FAULTS_CORE=1) ----------------------------------------
-if [ "${VL_FAULTS_CORE:-0}" = 1 ]; then
-  for fault in corrupt imu-hour imu-max imu-min shift twice velocity no-imu; do
-    echo "== row $fault (estimator)"
-    step=100
-    [ "$fault" = imu-min ] && step=0
-    inject "$fault" --step "$step"
-    start_logger "c-$fault"
-    start_daemon "c-$fault"
-    # Never give up: whether the daemon comes back after the fault is the question.
-    replay "c-$fault" "$OUT/$fault.lcmlog" --timeout-ms 200 --max-timeouts 0
-    if [ "$fault" = twice ]; then
+# ---- the estimator's rows ---------------------------------------------------------------------
+# fault:step:count:the final status counter that must name it
+core_rows="corrupt:100::inputs_rejected imu-hour:100::time_jumps imu-max:100::time_jumps
+  imu-min:0::timeline_changes shift:100::timeline_changes twice:100::timeline_changes
+  velocity:100::imu_implausible no-imu:100:50:frames_imu_silent"
+for row in $core_rows; do
+  IFS=: read -r fault step count counter <<<"$row"
+  echo "== row $fault (estimator)"
+  if [ -n "$count" ]; then inject "$fault" --step "$step" --count "$count"; else inject "$fault" --step "$step"; fi
+  start_logger "c-$fault"
+  start_daemon "c-$fault"
+  # Never give up: whether the daemon comes back after the fault is the question.
+  replay "c-$fault" "$OUT/$fault.lcmlog" --timeout-ms 200 --max-timeouts 0
+  case $fault in
+    twice) # the second pass, all of it
       stop_all "c-$fault"
       got=$(value "$OUT/c-$fault.inspect" pose.features)
-      want=$((2 * FRAMES))
-    else
+      want=$((2 * FRAMES)) ;;
+    shift) # the frames after the fault live an hour earlier: all frames minus those before it
+      stop_all "c-$fault"
+      got=$(($(value "$OUT/c-$fault.inspect" pose.features) - (FRAMES - FRAMES_AFTER)))
+      want=$FRAMES_AFTER ;;
+    *)
       stop_all "c-$fault" "$FAULT_UTIME"
       got=$(value "$OUT/c-$fault.inspect" pose.features_after)
-      want=$FRAMES_AFTER
-    fi
-    check "$fault: replay and daemon do not crash; daemon exits 0" \
-      test "$DAEMON_RC" = 0 -a "$REPLAY_RC" -lt 128
-    check "$fault: poses for >= 95% of the frames after the fault" at_least_95 "$got" "$want"
-    check "$fault: no non-finite pose published" eq "$(value "$OUT/c-$fault.inspect" pose.non_finite)" 0
-    if [ "$fault" != no-imu ]; then
-      check "$fault: the final status counts rejected inputs" ge "$(value "$OUT/c-$fault.inspect" status.last.inputs_rejected)" 1
-    fi
-  done
-else
-  echo "== estimator rows (corrupt imu-hour imu-max imu-min shift twice velocity no-imu) not run: VL_FAULTS_CORE=1 enables them"
-fi
+      want=$FRAMES_AFTER ;;
+  esac
+  check "$fault: replay and daemon do not crash; daemon exits 0" \
+    test "$DAEMON_RC" = 0 -a "$REPLAY_RC" -lt 128
+  check "$fault: poses for >= 95% of the frames after the fault ($got of $want)" at_least_95 "$got" "$want"
+  check "$fault: no non-finite pose published" eq "$(value "$OUT/c-$fault.inspect" pose.non_finite)" 0
+  check "$fault: the final status names it ($counter >= 1)" ge "$(value "$OUT/c-$fault.inspect" "status.last.$counter")" 1
+done
 
 echo "== $((SECONDS - START)) s, $FAILS failure(s)"
 [ "$FAILS" -eq 0 ]

@@ -138,7 +138,8 @@ def _damage(vislam, event, kind, rng):
 def inject(in_path, out_path, fault, step=100, count=None, seed=1, offset_us=-HOUR_US,
            imu_channel="VISLAM_IMU", features_channel="VISLAM_FEATURES"):
     """Write the faulty copy; returns a dict describing what was done (fault_utime: the first utime
-    the fault touches, frames_after: frames of the output with a utime after it)."""
+    the fault touches, for no-imu the last sample removed; frames_after: frames of the input with a
+    utime after it)."""
     rng = random.Random(seed)
     if fault == "empty":
         write_log(out_path, [])
@@ -204,9 +205,13 @@ def inject(in_path, out_path, fault, step=100, count=None, seed=1, offset_us=-HO
         info["fault_utime"] = vislam.imu_t.decode(events[steps[0]].data).utime
     elif fault == "no-imu":
         n = 100 if count is None else count
-        drop = set(steps[step:step + n])
+        removed = steps[step:step + n]
+        drop = set(removed)
         chunks = [e for i, e in enumerate(events) if i not in drop]
         info["removed"] = len(drop)
+        # "after the fault" is after the IMU comes back
+        fault_utime = vislam.imu_t.decode(events[removed[-1]].data).utime
+        info["fault_utime"] = fault_utime
     else:
         raise ToolError(f"unknown fault {fault}; one of {', '.join(LOG_FAULTS + CONTENT_FAULTS)}")
     write_log(out_path, chunks)
