@@ -5,7 +5,7 @@
 #   tools/bench.sh                          every section (about 5-10 minutes)
 #   tools/bench.sh --quick                  shorter variants (about 2-3 minutes)
 #   tools/bench.sh --section timing ...     only these sections (repeatable, or comma-separated):
-#                                           accuracy sweep window timing daemon figures conditions
+#                                           accuracy sweep window timing daemon figures conditions soak
 # Options: --data DIR (default ../shared/data), --build-dir DIR (default build-bench),
 #          --no-build (use the build as it is), --cyclictest-seconds N (default 10, quick 5)
 #
@@ -57,6 +57,37 @@ daemon_inner() {
   echo "replay exit $replay_rc, vislamd exit $daemon_rc"
   [ "$replay_rc" -eq 0 ] && [ "$daemon_rc" -eq 0 ]
 }
+# ---- inside the private network namespace: the soak (one vislamd, the logs looped) ------------
+# bench.sh --soak-inner BIN ALLOC_SO OUT_DIR LOOPS LOG...  (only via unshare, from section_soak)
+soak_inner() {
+  local bin=$1 alloc=$2 out=$3 loops=$4 daemon loop log name rc
+  shift 4
+  ip link set lo up multicast on || return 3
+  ip route add 224.0.0.0/4 dev lo || return 3
+  local preload=()
+  [ -n "$alloc" ] && preload=(env LD_PRELOAD="$alloc")
+  rm -f "$out/soak.tum"
+  "${preload[@]}" "$bin/vislamd" --lcm-url "$LCM_URL" --trajectory "$out/soak.tum" 2>"$out/vislamd.log" &
+  daemon=$!
+  printf 'loop\tlog\trss_kb\treplay_exit\tjson\n' >"$out/loops.tsv"
+  for ((loop = 1; loop <= loops; loop++)); do
+    for log in "$@"; do
+      name=$(basename "$log" .lcmlog)
+      rc=0
+      "$bin/vislam-replay" "$log" --lcm-url "$LCM_URL" --lockstep --max --wait-for VISLAM_STATUS \
+        --timeout-ms 2000 --max-timeouts 0 --quiet --summary-json "$out/l${loop}_$name.json" || rc=$?
+      printf '%s\t%s\t%s\t%s\t%s\n' "$loop" "$name" "$(awk '/^VmRSS/ {print $2}' "/proc/$daemon/status")" "$rc" \
+        "$out/l${loop}_$name.json" >>"$out/loops.tsv"
+    done
+  done
+  kill -TERM "$daemon" 2>/dev/null
+  wait "$daemon"
+}
+if [ "${1:-}" = "--soak-inner" ]; then
+  shift
+  soak_inner "$@"
+  exit
+fi
 if [ "${1:-}" = "--daemon-inner" ]; then
   shift
   daemon_inner "$@"
@@ -64,7 +95,7 @@ if [ "${1:-}" = "--daemon-inner" ]; then
 fi
 
 # ---- options ------------------------------------------------------------------------------------
-ALL_SECTIONS=(accuracy sweep window timing daemon figures conditions)
+ALL_SECTIONS=(accuracy sweep window timing daemon figures conditions soak)
 QUICK=0
 SECTIONS=()
 DATA="../shared/data"
@@ -542,6 +573,33 @@ section_daemon() {
 }
 
 # ---- 6. figures -----------------------------------------------------------------------------------
+section_soak() {
+  begin_section soak "8. Soak: vislamd fed the seed drives in a loop, over an hour of sensor time"
+  local d="$OUT/soak" alloc loops=12 logs=() n
+  mkdir -p "$d"
+  if ! unshare --net true 2>/dev/null || ! command -v ip >/dev/null 2>&1; then
+    say "SKIPPED: needs a private network namespace (unshare --net) and ip (iproute2)."
+    end_section
+    return
+  fi
+  need_data "the soak replays 0022, 0027 and 0034" || { end_section; return; }
+  for n in 0022 0027 0034; do
+    logs+=("$(logfor "$n")") || { end_section; return; }
+  done
+  [ "$QUICK" -eq 1 ] && loops=2
+  alloc=$(find "$BUILD" -name 'libvl_alloc_counter.so' -print -quit 2>/dev/null)
+  echo "unshare --net bash $SELF --soak-inner $BIN ${alloc:-''} $d $loops ${logs[*]}" >>"$SEC_CMDS"
+  if ! unshare --net bash "$SELF" --soak-inner "$BIN" "$alloc" "$d" "$loops" "${logs[@]}" >"$d/inner.log" 2>&1; then
+    warn "soak failed: $(tail -n 1 "$d/inner.log") (see $d)"
+  fi
+  say "One vislamd (default options, LD_PRELOAD allocation counter), fed by vislam-replay --lockstep --max"
+  say "over LCM on a private loopback: 0022, 0027, 0034, then again, $loops times. Each new log is a new"
+  say "timeline for the daemon (its time jumps back or days ahead), which the time policy handles."
+  say ""
+  table soak "$d/loops.tsv" "$d/vislamd.log"
+  end_section
+}
+
 section_figures() {
   begin_section figures "6. Figures (trajectory, dead reckoning, map; animation)"
   local d="$OUT/figures" names=() name log gt
@@ -722,6 +780,7 @@ for s in "${ALL_SECTIONS[@]}"; do
     window) section_window ;;
     timing) section_timing ;;
     daemon) section_daemon ;;
+    soak) section_soak ;;
     figures) section_figures ;;
     conditions) section_conditions ;;
   esac

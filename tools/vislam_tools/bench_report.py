@@ -10,6 +10,8 @@ the others.
   timing ROWS     label, stats.json (vislam-run --timing --stats-json)
   callgrind DIR   per-call costs from the dumps of callgrind --dump-after=vl_update
   daemon ROWS     label, vislamd stderr, vislam-replay --summary-json
+  soak LOOPS LOG  bench.sh's loops.tsv (loop, log, daemon RSS in KiB, replay exit, summary json) and
+                  the daemon's stderr
   conditions ROWS drive, velocities, K, truth, conditions summary.json, ate.json (dead reckoning),
                   ate.json (default); --json OUT (cell -> numbers), --png OUT (figure)
 """
@@ -252,6 +254,9 @@ def _daemon_summary(path):
     m = re.search(r"heap allocations after start-up: (\d+) in the process, (\d+) in the main", text)
     if m:
         d["alloc_process"], d["alloc_main"] = int(m.group(1)), int(m.group(2))
+    m = re.search(r"timeline changes (\d+), divergence resets (\d+)", text)
+    if m:
+        d["timeline_changes"], d["divergence_resets"] = int(m.group(1)), int(m.group(2))
     return d
 
 
@@ -272,6 +277,34 @@ def cmd_daemon(args):
                      f"{_fmt(r.get('frames_returned'))} of {_fmt(r.get('frames_expected'))}",
                      f"{_fmt(d.get('alloc_process'))} / {_fmt(d.get('alloc_main'))}"])
     print(_table(header, rows))
+
+
+def cmd_soak(args):
+    loops = _rows(args.loops)[1:]  # the first line names the columns
+    header = ["loop", "log", "sensor time (s)", "frames answered", "end-to-end p99 / max (us)",
+              "daemon RSS (KiB)", "replay exit"]
+    rows, sensor_s, expected, returned, rss = [], 0.0, 0, 0, []
+    for loop, log, rss_kb, rc, summary in loops:
+        r = _load_json(summary) or {}
+        lat = r.get("latency_us", {})
+        sensor_s += r.get("log_s") or 0.0
+        expected += r.get("frames_expected") or 0
+        returned += r.get("frames_returned") or 0
+        if rss_kb.isdigit():
+            rss.append(int(rss_kb))
+        rows.append([loop, log, _fmt(r.get("log_s"), 1), f"{_fmt(r.get('frames_returned'))} of "
+                     f"{_fmt(r.get('frames_expected'))}", " / ".join(_fmt(lat.get(k)) for k in ("p99", "max")),
+                     rss_kb, rc])
+    print(_table(header, rows))
+    d = _daemon_summary(args.log)
+    print()
+    print(f"Sensor time {sensor_s:.0f} s ({sensor_s / 3600:.2f} h) in {len(loops)} replays; frames answered "
+          f"{returned} of {expected} ({expected - returned} without a pose, at the timeline switches); "
+          f"daemon RSS after the first replay {_fmt(rss[0] if rss else None)} KiB, after the last "
+          f"{_fmt(rss[-1] if rss else None)} KiB, largest {_fmt(max(rss) if rss else None)} KiB; timeline "
+          f"changes {_fmt(d.get('timeline_changes'))}, divergence resets {_fmt(d.get('divergence_resets'))}; "
+          f"heap allocations after start-up {_fmt(d.get('alloc_process'))} in the process, "
+          f"{_fmt(d.get('alloc_main'))} in the main (estimation) thread.")
 
 
 def _condition_cells(rows_path):
@@ -349,12 +382,15 @@ def main(argv=None):
     p.add_argument("rows")
     p.add_argument("--json")
     p.add_argument("--png")
+    p = sub.add_parser("soak")
+    p.add_argument("loops")
+    p.add_argument("log")
     p = sub.add_parser("callgrind")
     p.add_argument("dir")
     p.add_argument("--json")
     args = ap.parse_args(argv)
     return {"ate": cmd_ate, "window": cmd_window, "timing": cmd_timing, "callgrind": cmd_callgrind,
-            "daemon": cmd_daemon, "conditions": cmd_conditions}[args.cmd](args) or 0
+            "daemon": cmd_daemon, "conditions": cmd_conditions, "soak": cmd_soak}[args.cmd](args) or 0
 
 
 if __name__ == "__main__":
