@@ -156,7 +156,8 @@ replay() { # replay NAME LOG [ARGS...]: lockstep at 8x; exit status in $REPLAY_R
   local name=$1 log=$2
   shift 2
   REPLAY_RC=0
-  "$BIN/vislam-replay" "$log" --lcm-url "$URL" --lockstep --speed 8 --wait-for VISLAM_STATUS --timeout-ms 1000 \
+  "$BIN/vislam-replay" "$log" --lcm-url "$URL" --lockstep --speed 8 --wait-for VISLAM_STATUS --wait-timeout-ms 10000 \
+    --timeout-ms 1000 \
     --quiet --summary-json "$OUT/$name.replay.json" "$@" 2>"$OUT/$name.replay.err" || REPLAY_RC=$?
 }
 inject() { # inject FAULT [ARGS...]: $OUT/FAULT.lcmlog; the tool's key=value line into INFO_*

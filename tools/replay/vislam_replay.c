@@ -75,6 +75,7 @@ typedef struct {
     int max;
     int lockstep;
     long timeout_ms;
+    long wait_timeout_ms; /* --wait-for; negative: timeout_ms */
     long linger_ms;
     int quiet;
 } options_t;
@@ -149,6 +150,7 @@ static void usage(FILE *f)
             "  --pose-channel C      poses counted and awaited (default VISLAM_POSE)\n"
             "  --wait-for C          before playing, wait until a message arrives on C (e.g.\n"
             "                        VISLAM_STATUS: the daemon publishes one as soon as it is up)\n"
+            "  --wait-timeout-ms N   how long --wait-for waits (default: --timeout-ms)\n"
             "  --linger-ms N         after the last event, keep counting poses for N ms (default 500)\n"
             "  --imu-channel C       IMU samples whose poses count as answers (default VISLAM_IMU)\n"
             "  --calib-channel C     the calibration re-published (default VISLAM_CALIB)\n"
@@ -180,6 +182,7 @@ static int parse_args(int argc, char **argv, options_t *o)
     memset(o, 0, sizeof(*o));
     o->speed = 1.0;
     o->timeout_ms = 5000;
+    o->wait_timeout_ms = -1;
     o->linger_ms = 500;
     o->pose_channel = "VISLAM_POSE";
     o->features_channel = "VISLAM_FEATURES";
@@ -215,7 +218,7 @@ static int parse_args(int argc, char **argv, options_t *o)
                                                  "--channels",     "--lcm-url",      "--pose-channel",
                                                  "--features-channel", "--wait-for", "--summary-json",
                                                  "--imu-channel",  "--calib-channel", "--status-channel",
-                                                 "--calib-period-ms", "--max-timeouts"};
+                                                 "--calib-period-ms", "--max-timeouts", "--wait-timeout-ms"};
         int known = 0;
         for (size_t k = 0; k < sizeof(with_value) / sizeof(with_value[0]); ++k) {
             known |= strcmp(a, with_value[k]) == 0;
@@ -238,14 +241,21 @@ static int parse_args(int argc, char **argv, options_t *o)
                 return -1;
             }
         } else if (strcmp(a, "--timeout-ms") == 0 || strcmp(a, "--linger-ms") == 0 ||
-                   strcmp(a, "--calib-period-ms") == 0) {
+                   strcmp(a, "--calib-period-ms") == 0 || strcmp(a, "--wait-timeout-ms") == 0) {
             const long n = strtol(v, &end, 10);
             if (end == v || *end != '\0' || errno != 0 || n < 0 || n > 3600000L) {
                 fprintf(stderr, "vislam-replay: %s %s: expected an integer in 0..3600000\n", a, v);
                 return -1;
             }
-            *(strcmp(a, "--timeout-ms") == 0 ? &o->timeout_ms
-                                              : (strcmp(a, "--linger-ms") == 0 ? &o->linger_ms : &o->calib_period_ms)) = n;
+            long *dst = &o->calib_period_ms;
+            if (strcmp(a, "--timeout-ms") == 0) {
+                dst = &o->timeout_ms;
+            } else if (strcmp(a, "--linger-ms") == 0) {
+                dst = &o->linger_ms;
+            } else if (strcmp(a, "--wait-timeout-ms") == 0) {
+                dst = &o->wait_timeout_ms;
+            }
+            *dst = n;
         } else if (strcmp(a, "--max-timeouts") == 0) {
             const long n = strtol(v, &end, 10);
             if (end == v || *end != '\0' || errno != 0 || n < 0 || n > 1000000L) {
@@ -612,8 +622,9 @@ int main(int argc, char **argv)
     int incomplete = 0;
     if (o->wait_for != NULL) {
         lcm_subscribe(r->lcm, o->wait_for, on_wait_for, r);
-        if (!wait_until_flag(r, &r->saw_wait_for, vl_clock_monotonic_us() + o->timeout_ms * 1000)) {
-            fprintf(stderr, "vislam-replay: nothing on %s within %ld ms%s\n", o->wait_for, o->timeout_ms,
+        const long wait_ms = o->wait_timeout_ms >= 0 ? o->wait_timeout_ms : o->timeout_ms;
+        if (!wait_until_flag(r, &r->saw_wait_for, vl_clock_monotonic_us() + wait_ms * 1000)) {
+            fprintf(stderr, "vislam-replay: nothing on %s within %ld ms%s\n", o->wait_for, wait_ms,
                     vl_signal_stop_requested() ? " (interrupted)" : "; is the daemon running on this LCM url?");
             lcm_destroy(r->lcm);
             lcm_eventlog_destroy(log);
