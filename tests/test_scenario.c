@@ -318,6 +318,33 @@ void test_sparse_clean_drive_does_no_harm(void)
     TEST_ASSERT_TRUE(slam.rms_position_error <= dr.rms_position_error);
 }
 
+void test_realistic_sparse_drives_with_noisy_velocities_do_no_harm(void)
+{
+    static run_result_t slam, dr;
+    /* the simulator's realistic conditions at about 6 and 20 observations per frame */
+    static const uint32_t caps[2] = {9, 28};
+    for (int c = 0; c < 2; ++c) {
+        for (uint64_t seed = 1; seed <= 2; ++seed) {
+            vl_sim_config_t sc;
+            vl_config_t cfg;
+            vl_sim_config_default(&sc);
+            vl_sim_config_realistic(&sc);
+            sc.max_observations = caps[c];
+            sc.seed = seed;
+            sc.num_steps = 1100;
+            vl_config_default(&cfg);
+            cfg.calibration = sc.calibration;
+            run(&sc, &cfg, &slam);
+            const double obs_per_frame = (double)vl_get_counters(&est)->observations_received / 1100.0;
+            cfg.mode = VL_MODE_IMU_ONLY;
+            run(&sc, &cfg, &dr);
+            printf("realistic, %.1f observations per frame, seed %u: slam %.3f m, dead reckoning %.3f m\n",
+                   obs_per_frame, (unsigned)seed, slam.rms_position_error, dr.rms_position_error);
+            TEST_ASSERT_TRUE(slam.rms_position_error < dr.rms_position_error);
+        }
+    }
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -330,5 +357,6 @@ int main(void)
     RUN_TEST(test_replay_is_bit_identical);
     RUN_TEST(test_adaptive_noise_moves_wrong_settings_toward_the_truth);
     RUN_TEST(test_sparse_clean_drive_does_no_harm);
+    RUN_TEST(test_realistic_sparse_drives_with_noisy_velocities_do_no_harm);
     return UNITY_END();
 }
