@@ -2,9 +2,7 @@
  * The estimator: prediction on SE(3), stereo landmark initialization, the joint
  * update, and the bounded landmark window with exact marginalization.
  *
- * State order: [rho, phi (pose), linear offset, angular offset, landmark 0, ...].
- * Offsets are always present in the layout; with estimate_input_offsets off
- * their covariance stays zero, so they never move.
+ * The state layout is in vl_estimator_internal.h.
  *
  * Errors are invariant (world-frame) errors of the group SE_{K+1}(3) formed by the
  * pose and the landmarks: T = exp(xi) T_hat, l_i = exp(phi) l_hat_i + J_l(phi) rho_i.
@@ -21,13 +19,12 @@
 #include <math.h>
 #include <string.h>
 
+#include "vl_camera.h"
+#include "vl_estimator_internal.h"
 #include "vl_linalg.h"
 #include "vl_se3.h"
 #include "vl_stereo.h"
 
-#define LD VL_STATE_DIM_MAX
-#define IDX_OFFSET_LIN 6
-#define IDX_OFFSET_ANG 9
 /* Fewer tracked observations than this never count as a re-association. */
 #define VL_MIN_ROWS_FOR_REASSOCIATION 8
 /* Adapted noise stays within this factor (of the std) of its configured value, either way. */
@@ -39,183 +36,27 @@
 /* Variance factor applied when frame after frame contradicts the prior. */
 #define VL_NOISE_WIDEN_ON_CONTRADICTION 4.0
 
+/* Admission score bonus per frame of track age (frames seen before this one)... */
+#define VL_ADMISSION_AGE_BONUS 0.5
+/* ...counted up to this age: a track already seen 4 frames ranks at 3x its disparity. */
+#define VL_ADMISSION_AGE_CAP 4u
+
 typedef char vl_assert_capacity_positive[(VL_MAX_LANDMARKS >= 1) ? 1 : -1];
 typedef char vl_assert_capacity_bounded[(VL_MAX_LANDMARKS <= 4096) ? 1 : -1];
 typedef char vl_assert_frame_capacity[(VL_MAX_FRAME_FEATURES >= 1) ? 1 : -1];
 typedef char vl_assert_pending_capacity[(VL_MAX_PENDING >= VL_MAX_FRAME_FEATURES) ? 1 : -1];
 
-static double *P_at(vl_estimator_t *e, uint32_t row, uint32_t col)
-{
-    return &e->P[(size_t)col * LD + row];
-}
-
-static uint32_t landmark_col(uint32_t slot)
-{
-    return VL_CORE_DIM + 3u * slot;
-}
-
-static void log_msg(const vl_estimator_t *e, vl_log_level_t level, int64_t utime, const char *msg)
-{
-    if (e->cfg.log != NULL) {
-        e->cfg.log(e->cfg.log_user, level, utime, msg);
-    }
-}
-
-static int all_finite(const double *v, int n)
-{
-    for (int i = 0; i < n; ++i) {
-        if (!isfinite(v[i])) {
-            return 0;
-        }
-    }
-    return 1;
-}
-
-/*
- * a - b in microseconds, saturated to the int64 range: input times come from
- * outside, and INT64_MIN or INT64_MAX must not overflow the subtraction.
- */
-static int64_t utime_diff(int64_t a, int64_t b)
-{
-    if (b < 0 && a > INT64_MAX + b) {
-        return INT64_MAX;
-    }
-    if (b > 0 && a < INT64_MIN + b) {
-        return INT64_MIN;
-    }
-    return a - b;
-}
-
-/* A configured time limit in microseconds (vl_config_check bounds it by VL_MAX_TIME_LIMIT s). */
-static int64_t limit_us(double seconds)
-{
-    return (int64_t)(seconds * 1e6);
-}
-
-/* ---------------------------------------------------------------- geometry */
-
-/* cam_T_imu as rotation and translation. */
-static void camera_extrinsics(const vl_calibration_t *cal, double Rc[9], double tc[3])
-{
-    for (int i = 0; i < 3; ++i) {
-        for (int j = 0; j < 3; ++j) {
-            Rc[3 * i + j] = cal->cam_T_imu[4 * i + j];
-        }
-        tc[i] = cal->cam_T_imu[4 * i + 3];
-    }
-}
-
-/* World point of a window landmark, m. */
-static const double *landmark_point(const vl_estimator_t *e, uint32_t slot)
-{
-    return &e->landmark_state[3 * slot];
-}
-
-/*
- * A world point in the IMU frame (b = R^T (p_w - p)) and the left camera frame
- * (c = Rc b + tc). Returns 0 when it is in front of the camera.
- */
-static int camera_point(const vl_estimator_t *e, const double Rc[9], const double tc[3], const double pw[3],
-                        double b[3], double c[3])
-{
-    const double d[3] = {pw[0] - e->p[0], pw[1] - e->p[1], pw[2] - e->p[2]};
-    vl_matmul_at(e->R, d, b, 3, 3, 1);
-    vl_matmul(Rc, b, c, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        c[i] += tc[i];
-    }
-    return (c[2] > 1e-3) ? 0 : -1;
-}
-
-/*
- * Predicted compressed observation of a world point, d y / d xi (pose, 3x6) and
- * d y / d p_w (3x3). Returns 0 when the point is in front of the camera.
- */
-static int project_world_point(const vl_estimator_t *e, const double pw[3], double y[3], double H_pose[18],
-                               double dy_dpw[9])
-{
-    const vl_calibration_t *cal = &e->cfg.calibration;
-    double Rc[9], tc[3], b[3], c[3];
-    camera_extrinsics(cal, Rc, tc);
-    if (camera_point(e, Rc, tc, pw, b, c) != 0) {
-        return -1;
-    }
-    double dy_dc[9];
-    vl_stereo_project(cal, c, y, dy_dc);
-
-    /* d b / d xi = -odot(b) (right perturbation of the world-from-IMU pose) */
-    double odot[18], dy_db[9];
-    vl_circle_dot(b, odot);
-    vl_matmul(dy_dc, Rc, dy_db, 3, 3, 3);
-    vl_matmul(dy_db, odot, H_pose, 3, 3, 6);
-    for (int i = 0; i < 18; ++i) {
-        H_pose[i] = -H_pose[i];
-    }
-    /* d b / d p_w = R^T */
-    vl_matmul_bt(dy_db, e->R, dy_dpw, 3, 3, 3);
-    return 0;
-}
-
-/* Squared Mahalanobis length r^T S^-1 r of a 3-vector; a non-SPD S gives infinity. */
-static double mahalanobis3(const double S[9], const double r[3])
-{
-    const double d00 = S[0];
-    if (!(d00 > 0.0)) {
-        return INFINITY;
-    }
-    const double l00 = sqrt(d00);
-    const double l10 = S[3] / l00, l20 = S[6] / l00;
-    const double d11 = S[4] - l10 * l10;
-    if (!(d11 > 0.0)) {
-        return INFINITY;
-    }
-    const double l11 = sqrt(d11);
-    const double l21 = (S[7] - l20 * l10) / l11;
-    const double d22 = S[8] - l20 * l20 - l21 * l21;
-    if (!(d22 > 0.0)) {
-        return INFINITY;
-    }
-    const double l22 = sqrt(d22);
-    const double w0 = r[0] / l00;
-    const double w1 = (r[1] - l10 * w0) / l11;
-    const double w2 = (r[2] - l20 * w0 - l21 * w1) / l22;
-    return w0 * w0 + w1 * w1 + w2 * w2;
-}
-
-/* World point and its pixel-noise covariance from one compressed observation at the current pose. */
-static void triangulate_world(const vl_estimator_t *e, const double y[3], double pw[3], double C[9])
-{
-    const vl_calibration_t *cal = &e->cfg.calibration;
-    double Rc[9], tc[3], c[3], dc_dy[9], d[3], b[3], J[9], RRc[9], tmp[9];
-    camera_extrinsics(cal, Rc, tc);
-    vl_stereo_triangulate(cal, y, c, dc_dy);
-    for (int i = 0; i < 3; ++i) {
-        d[i] = c[i] - tc[i];
-    }
-    vl_matmul_at(Rc, d, b, 3, 3, 1);
-    vl_matmul(e->R, b, pw, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        pw[i] += e->p[i];
-    }
-    vl_matmul_bt(e->R, Rc, RRc, 3, 3, 3);
-    vl_matmul(RRc, dc_dy, J, 3, 3, 3);
-    const double s2 = e->pixel_var;
-    const double noise[9] = {s2, 0, 0, 0, 0.5 * s2, 0, 0, 0, s2};
-    vl_matmul(J, noise, tmp, 3, 3, 3);
-    vl_matmul_bt(tmp, J, C, 3, 3, 3);
-}
-
 /* ---------------------------------------------------------------- prediction */
 
 static void propagate_to(vl_estimator_t *e, int64_t utime)
 {
-    const double tau = (double)utime_diff(utime, e->state_utime) * 1e-6;
+    const double tau = (double)vl_utime_diff(utime, e->state_utime) * 1e-6;
     if (tau <= 0.0) {
         return;
     }
     if (tau > e->cfg.max_propagation_dt) {
         e->counters.time_gaps++;
-        log_msg(e, VL_LOG_WARN, utime, "long gap between inputs; propagating across it");
+        vl_log_msg(e, VL_LOG_WARN, utime, "long gap between inputs; propagating across it");
     }
 
     double xi[6], dR[9], dp[3];
@@ -257,14 +98,15 @@ static void propagate_to(vl_estimator_t *e, int64_t utime)
             col[i] = Gp[6 * i + j];
             col[6 + i] = 0.0;
         }
-        const double psi[3] = {Gp[6 * 3 + j], Gp[6 * 4 + j], Gp[6 * 5 + j]};
+        const double *phi_rows = &Gp[6 * VL_IDX_PHI + j]; /* column j of the rotation rows, stride 6 */
+        const double psi[3] = {phi_rows[0], phi_rows[6], phi_rows[12]};
         for (uint32_t s = 0; s < e->num_landmarks; ++s) {
-            double *g = &col[landmark_col(s)];
+            double *g = &col[vl_landmark_col(s)];
             if (e->cfg.mode == VL_MODE_MAPPING) {
                 g[0] = g[1] = g[2] = 0.0; /* the trajectory is taken as known */
                 continue;
             }
-            const double *l = landmark_point(e, s);
+            const double *l = vl_landmark_point(e, s);
             g[0] = l[1] * psi[2] - l[2] * psi[1];
             g[1] = l[2] * psi[0] - l[0] * psi[2];
             g[2] = l[0] * psi[1] - l[1] * psi[0];
@@ -276,7 +118,7 @@ static void propagate_to(vl_estimator_t *e, int64_t utime)
     const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
     const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
     const double offset_var[6] = {qv, qv, qv, qw, qw, qw};
-    vl_la_propagate(e->P, LD, (int)n, G, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL,
+    vl_la_propagate(e->P, VL_LD, (int)n, G, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL,
                     e->work_PHt + (size_t)6 * n);
 }
 
@@ -296,14 +138,14 @@ static int find_slot(const vl_estimator_t *e, int32_t id)
 static void landmark_output(const vl_estimator_t *e, uint32_t slot, vl_landmark_t *out)
 {
     const vl_landmark_slot_t *s = &e->slots[slot];
-    const double *l = landmark_point(e, slot);
+    const double *l = vl_landmark_point(e, slot);
     memcpy(out->position, l, 3 * sizeof(double));
-    const uint32_t c = landmark_col(slot);
-    const uint32_t idx[6] = {3, 4, 5, c, c + 1, c + 2};
+    const uint32_t c = vl_landmark_col(slot);
+    const uint32_t idx[6] = {VL_IDX_PHI, VL_IDX_PHI + 1, VL_IDX_PHI + 2, c, c + 1, c + 2};
     double B[36];
     for (int i = 0; i < 6; ++i) {
         for (int j = 0; j < 6; ++j) {
-            B[6 * i + j] = e->P[(size_t)idx[j] * LD + idx[i]];
+            B[6 * i + j] = e->P[(size_t)idx[j] * VL_LD + idx[i]];
         }
     }
     double J[18] = {0};
@@ -336,7 +178,7 @@ static void marginalize_slot(vl_estimator_t *e, uint32_t slot)
     }
     const uint32_t last = e->num_landmarks - 1u;
     if (slot != last) {
-        vl_la_move_block(e->P, LD, (int)vl_state_dim(e), (int)landmark_col(slot), (int)landmark_col(last));
+        vl_la_move_block(e->P, VL_LD, (int)vl_state_dim(e), (int)vl_landmark_col(slot), (int)vl_landmark_col(last));
         e->slots[slot] = e->slots[last];
         memcpy(&e->landmark_state[3 * slot], &e->landmark_state[3 * last], 3 * sizeof(double));
         e->work_seen[slot] = e->work_seen[last];
@@ -355,38 +197,25 @@ static void marginalize_slot(vl_estimator_t *e, uint32_t slot)
  */
 static void admit_landmark(vl_estimator_t *e, int32_t id, const double y[3])
 {
-    const vl_calibration_t *cal = &e->cfg.calibration;
-    double Rc[9], tc[3], c[3], dc_dy[9], b[3], d[3], Rb[3], RRc[9];
-    camera_extrinsics(cal, Rc, tc);
-    vl_stereo_triangulate(cal, y, c, dc_dy);
-    for (int i = 0; i < 3; ++i) {
-        d[i] = c[i] - tc[i];
-    }
-    vl_matmul_at(Rc, d, b, 3, 3, 1); /* b = Rc^T (c - tc), the point in the IMU frame */
-
     const uint32_t slot = e->num_landmarks;
     vl_landmark_slot_t *s = &e->slots[slot];
     double *l = &e->landmark_state[3 * slot];
-    vl_matmul(e->R, b, Rb, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        l[i] = Rb[i] + e->p[i];
-    }
-    double J_pose[18] = {0}, J_obs[9];
+    double J_pose[18] = {0}, J_obs[9], noise[3];
+    vl_camera_triangulate_world(e, y, l, J_obs);
     if (e->cfg.mode != VL_MODE_MAPPING) {
-        J_pose[0] = J_pose[7] = J_pose[14] = 1.0;
+        for (int i = 0; i < 3; ++i) {
+            J_pose[6 * i + VL_IDX_RHO + i] = 1.0;
+        }
     }
-    vl_matmul_bt(e->R, Rc, RRc, 3, 3, 3); /* R Rc^T */
-    vl_matmul(RRc, dc_dy, J_obs, 3, 3, 3);
-    const double s2 = e->pixel_var;
-    const double noise[3] = {s2, 0.5 * s2, s2};
-    vl_la_append_landmark(e->P, LD, (int)vl_state_dim(e), J_pose, J_obs, noise);
+    vl_stereo_noise_var(e->pixel_var, noise);
+    vl_la_append_landmark(e->P, VL_LD, (int)vl_state_dim(e), J_pose, J_obs, noise);
 
     s->id = id;
     s->observations = 1;
     s->unseen_frames = 0;
     s->first_utime = e->state_utime;
     s->last_utime = e->state_utime;
-    e->work_seen[slot] = 1;
+    e->work_seen[slot] = VL_SEEN;
     e->num_landmarks++;
     e->counters.landmarks_initialized++;
     if (e->num_landmarks > e->counters.window_peak) {
@@ -444,8 +273,8 @@ static int make_row(const vl_estimator_t *e, uint32_t slot, const vl_stereo_obs_
 {
     const vl_calibration_t *cal = &e->cfg.calibration;
     double Rc[9], tc[3], b[3], c[3], dy_dc[9], y_pred[3], y[3], RcRt[9];
-    camera_extrinsics(cal, Rc, tc);
-    if (camera_point(e, Rc, tc, landmark_point(e, slot), b, c) != 0) {
+    vl_camera_extrinsics(cal, Rc, tc);
+    if (vl_camera_point(e, Rc, tc, vl_landmark_point(e, slot), b, c) != 0) {
         return -1;
     }
     vl_stereo_project(cal, c, y_pred, dy_dc);
@@ -455,19 +284,16 @@ static int make_row(const vl_estimator_t *e, uint32_t slot, const vl_stereo_obs_
     if (e->cfg.mode != VL_MODE_MAPPING) {
         for (int i = 0; i < 3; ++i) {
             for (int j = 0; j < 3; ++j) {
-                row->H_pose[6 * i + j] = -row->H_landmark[3 * i + j];
+                row->H_pose[6 * i + VL_IDX_RHO + j] = -row->H_landmark[3 * i + j];
             }
         }
     }
     vl_stereo_compress(o, y);
-    const double s2 = e->pixel_var;
     for (int r = 0; r < 3; ++r) {
         row->residual[r] = y[r] - y_pred[r];
     }
-    row->noise_var[0] = s2;
-    row->noise_var[1] = 0.5 * s2;
-    row->noise_var[2] = s2;
-    row->landmark_col = (int)landmark_col(slot);
+    vl_stereo_noise_var(e->pixel_var, row->noise_var);
+    row->landmark_col = (int)vl_landmark_col(slot);
     return 0;
 }
 
@@ -520,8 +346,8 @@ static uint32_t gate_rows(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k
     uint32_t failed = 0;
     for (uint32_t i = 0; i < k; ++i) {
         double S[9];
-        vl_la_obs_covariance(e->P, LD, &rows[i], S);
-        e->work_inlier[i] = mahalanobis3(S, rows[i].residual) <= e->cfg.gate_chi2;
+        vl_la_obs_covariance(e->P, VL_LD, &rows[i], S);
+        e->work_inlier[i] = vl_mahalanobis3(S, rows[i].residual) <= e->cfg.gate_chi2;
         failed += !e->work_inlier[i];
     }
     return failed;
@@ -542,7 +368,7 @@ static void ransac_rows(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
     uint64_t rng = e->frame_index;
     for (uint32_t h = 0; h < hypotheses; ++h) {
         const uint32_t pick = (uint32_t)(next_random(&rng) % k);
-        if (vl_la_single_correction(e->P, LD, n, &rows[pick], e->work_PHt, e->work_dx) != 0) {
+        if (vl_la_single_correction(e->P, VL_LD, n, &rows[pick], e->work_PHt, e->work_dx) != 0) {
             continue;
         }
         uint8_t *flags = e->work_support;
@@ -583,7 +409,7 @@ static vl_status_t apply_update(vl_estimator_t *e, const vl_la_obs_t *rows, uint
     }
     vl_la_workspace_t ws = {e->work_PHt, e->work_S, e->work_dx};
     const uint32_t n = vl_state_dim(e);
-    if (vl_la_update(e->P, LD, (int)n, rows, (int)m, &ws) != 0 || !all_finite(e->work_dx, (int)n)) {
+    if (vl_la_update(e->P, VL_LD, (int)n, rows, (int)m, &ws) != 0 || !vl_all_finite(e->work_dx, (int)n)) {
         e->counters.numerical_failures++;
         return VL_ERR_NOT_POSITIVE_DEFINITE;
     }
@@ -591,21 +417,21 @@ static vl_status_t apply_update(vl_estimator_t *e, const vl_la_obs_t *rows, uint
      * correction and moves by J_l(phi) times its own translation correction. */
     const double *dx = e->work_dx;
     double dR[9], dp[3], Jl[9], Rn[9], v[3], w[3];
-    vl_se3_exp(dx, dR, dp);
-    vl_so3_left_jacobian(&dx[3], Jl);
+    vl_se3_exp(&dx[VL_IDX_RHO], dR, dp);
+    vl_so3_left_jacobian(&dx[VL_IDX_PHI], Jl);
     vl_matmul(dR, e->R, Rn, 3, 3, 3);
     memcpy(e->R, Rn, sizeof(Rn));
     vl_so3_normalize(e->R);
     vl_matmul(dR, e->p, v, 3, 3, 1);
     for (int i = 0; i < 3; ++i) {
         e->p[i] = v[i] + dp[i];
-        e->offset_linear[i] += dx[IDX_OFFSET_LIN + i];
-        e->offset_angular[i] += dx[IDX_OFFSET_ANG + i];
+        e->offset_linear[i] += dx[VL_IDX_OFFSET_LIN + i];
+        e->offset_angular[i] += dx[VL_IDX_OFFSET_ANG + i];
     }
     for (uint32_t s = 0; s < e->num_landmarks; ++s) {
         double *l = &e->landmark_state[3 * s];
         vl_matmul(dR, l, v, 3, 3, 1);
-        vl_matmul(Jl, &dx[landmark_col(s)], w, 3, 3, 1);
+        vl_matmul(Jl, &dx[vl_landmark_col(s)], w, 3, 3, 1);
         for (int i = 0; i < 3; ++i) {
             l[i] = v[i] + w[i];
         }
@@ -676,7 +502,7 @@ static void adapt_pixel_noise(vl_estimator_t *e, const vl_la_obs_t *rows, uint32
     uint32_t n = 0;
     for (uint32_t i = 0; i < k; ++i) {
         double S[9];
-        vl_la_obs_covariance(e->P, LD, &rows[i], S); /* H P+ H^T + R */
+        vl_la_obs_covariance(e->P, VL_LD, &rows[i], S); /* H P+ H^T + R */
         for (int r = 0; r < 3; ++r) {
             double res = rows[i].residual[r];
             for (int j = 0; j < 6; ++j) {
@@ -712,7 +538,7 @@ static void adapt_velocity_noise(vl_estimator_t *e, const double prior_diag[6])
         double expected = 0.0, seen = 0.0, prior = 0.0;
         for (int i = 3 * b; i < 3 * b + 3; ++i) {
             prior += prior_diag[i];
-            expected += prior_diag[i] - *P_at(e, (uint32_t)i, (uint32_t)i);
+            expected += prior_diag[i] - *vl_P_at(e, (uint32_t)i, (uint32_t)i);
             seen += dx[i] * dx[i];
         }
         if (!(expected > 1e-12 * prior) || !(prior > 0.0)) {
@@ -734,7 +560,7 @@ static void adapt_velocity_noise(vl_estimator_t *e, const double prior_diag[6])
  * features, hands some existing ids to different points (their pixels jump tens
  * of pixels away from the point's history but agree with its future). Such a
  * landmark leaves the window for the map and its id starts a new landmark from
- * this observation; its slot is marked 2 in work_seen and the observation is
+ * this observation; its slot is marked VL_SEEN_BROKEN in work_seen and the observation is
  * listed in work_broken.
  */
 static uint32_t rescue_outliers(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_la_obs_t *rows,
@@ -748,13 +574,13 @@ static uint32_t rescue_outliers(vl_estimator_t *e, const vl_stereo_frame_t *fram
             continue;
         }
         double S[9];
-        vl_la_obs_covariance(e->P, LD, &row, S);
-        if (mahalanobis3(S, row.residual) <= e->cfg.gate_chi2) {
+        vl_la_obs_covariance(e->P, VL_LD, &row, S);
+        if (vl_mahalanobis3(S, row.residual) <= e->cfg.gate_chi2) {
             rows[m] = row;
             e->work_slot[m] = slot;
             m++;
         } else {
-            e->work_seen[slot] = 2;
+            e->work_seen[slot] = VL_SEEN_BROKEN;
             e->work_broken[e->num_broken++] = e->work_frame_obs[i];
         }
     }
@@ -772,12 +598,14 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
     memcpy(e->R, I3, sizeof(I3));
     /* Only the leading 12 x 12 block is live at start; the rest is written as landmarks arrive. */
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
-        memset(&e->P[(size_t)j * LD], 0, VL_CORE_DIM * sizeof(double));
+        memset(&e->P[(size_t)j * VL_LD], 0, VL_CORE_DIM * sizeof(double));
     }
     if (cfg->estimate_input_offsets) {
         for (int i = 0; i < 3; ++i) {
-            *P_at(e, IDX_OFFSET_LIN + i, IDX_OFFSET_LIN + i) = cfg->linear_offset_prior * cfg->linear_offset_prior;
-            *P_at(e, IDX_OFFSET_ANG + i, IDX_OFFSET_ANG + i) = cfg->angular_offset_prior * cfg->angular_offset_prior;
+            *vl_P_at(e, VL_IDX_OFFSET_LIN + i, VL_IDX_OFFSET_LIN + i) =
+                cfg->linear_offset_prior * cfg->linear_offset_prior;
+            *vl_P_at(e, VL_IDX_OFFSET_ANG + i, VL_IDX_OFFSET_ANG + i) =
+                cfg->angular_offset_prior * cfg->angular_offset_prior;
         }
     }
     e->linear_velocity_var = cfg->linear_velocity_noise * cfg->linear_velocity_noise;
@@ -860,8 +688,8 @@ typedef enum { INPUT_IMU, INPUT_FRAME } input_kind_t;
  */
 static vl_status_t check_time(const vl_estimator_t *e, input_kind_t kind, int64_t utime)
 {
-    const int64_t limit = limit_us(e->cfg.max_time_jump);
-    const int64_t d = utime_diff(utime, e->clock_utime);
+    const int64_t limit = vl_limit_us(e->cfg.max_time_jump);
+    const int64_t d = vl_utime_diff(utime, e->clock_utime);
     if (d > limit || d < -limit) {
         return VL_ERR_TIME_JUMP;
     }
@@ -890,8 +718,8 @@ static int note_timeline(vl_estimator_t *e, input_kind_t kind, int64_t utime)
 {
     int follows = e->timeline_count > 0;
     if (follows) {
-        const int64_t limit = limit_us(e->cfg.max_time_jump);
-        const int64_t d = utime_diff(utime, e->timeline_last_utime);
+        const int64_t limit = vl_limit_us(e->cfg.max_time_jump);
+        const int64_t d = vl_utime_diff(utime, e->timeline_last_utime);
         follows = d <= limit && d >= -limit;
         if (kind == INPUT_IMU && e->timeline_have_imu && utime <= e->timeline_last_imu_utime) {
             follows = 0;
@@ -925,21 +753,21 @@ static int note_timeline(vl_estimator_t *e, input_kind_t kind, int64_t utime)
  */
 static int diverged(const vl_estimator_t *e)
 {
-    if (!all_finite(e->R, 9) || !all_finite(e->p, 3) || !all_finite(e->offset_linear, 3) ||
-        !all_finite(e->offset_angular, 3) || !all_finite(e->landmark_state, 3 * (int)e->num_landmarks)) {
+    if (!vl_all_finite(e->R, 9) || !vl_all_finite(e->p, 3) || !vl_all_finite(e->offset_linear, 3) ||
+        !vl_all_finite(e->offset_angular, 3) || !vl_all_finite(e->landmark_state, 3 * (int)e->num_landmarks)) {
         return 1;
     }
     const uint32_t n = vl_state_dim(e);
     for (uint32_t i = 0; i < n; ++i) {
-        const double d = e->P[(size_t)i * LD + i];
+        const double d = e->P[(size_t)i * VL_LD + i];
         if (!(d >= 0.0) || !isfinite(d)) {
             return 1;
         }
     }
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
         for (uint32_t i = 0; i < j; ++i) {
-            const double pij = e->P[(size_t)j * LD + i];
-            const double bound = e->P[(size_t)i * LD + i] * e->P[(size_t)j * LD + j];
+            const double pij = e->P[(size_t)j * VL_LD + i];
+            const double bound = e->P[(size_t)i * VL_LD + i] * e->P[(size_t)j * VL_LD + j];
             if (!isfinite(pij) || pij * pij > bound * (1.0 + 1e-6)) {
                 return 1;
             }
@@ -957,7 +785,7 @@ static vl_status_t guard_divergence(vl_estimator_t *e, int64_t utime, vl_status_
     }
     reset_state(e, 1);
     e->counters.divergence_resets++;
-    log_msg(e, VL_LOG_ERROR, utime, "estimator diverged; re-initialized with the same configuration");
+    vl_log_msg(e, VL_LOG_ERROR, utime, "estimator diverged; re-initialized with the same configuration");
     return VL_RESET;
 }
 
@@ -985,15 +813,15 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
     if (!e->initialized) {
         return VL_ERR_NOT_READY;
     }
-    if (!all_finite(imu->linear_velocity, 3) || !all_finite(imu->angular_velocity, 3)) {
+    if (!vl_all_finite(imu->linear_velocity, 3) || !vl_all_finite(imu->angular_velocity, 3)) {
         e->counters.imu_rejected++;
-        log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample with NaN or infinity rejected");
+        vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample with NaN or infinity rejected");
         return VL_ERR_NON_FINITE;
     }
     if (!imu_plausible(e, imu)) {
         e->counters.imu_rejected++;
         e->counters.imu_implausible++;
-        log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample beyond max_speed or max_rotation_rate rejected");
+        vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample beyond max_speed or max_rotation_rate rejected");
         return VL_ERR_IMPLAUSIBLE;
     }
     vl_status_t result = VL_OK;
@@ -1004,28 +832,28 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
                 e->counters.imu_rejected++;
                 if (st == VL_ERR_TIME_JUMP) {
                     e->counters.time_jumps++;
-                    log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample jumping in time rejected");
+                    vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample jumping in time rejected");
                 } else {
-                    log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample out of time order rejected");
+                    vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample out of time order rejected");
                 }
                 return st;
             }
             /* The inputs follow a new timeline: restart on it with this sample. */
             reset_state(e, 0);
             e->counters.timeline_changes++;
-            log_msg(e, VL_LOG_WARN, imu->utime, "inputs follow a new timeline; re-initialized on it");
+            vl_log_msg(e, VL_LOG_WARN, imu->utime, "inputs follow a new timeline; re-initialized on it");
             result = VL_RESET;
         }
     }
     if (e->have_imu) {
-        const int64_t silence = limit_us(e->cfg.max_imu_silence);
-        if (utime_diff(imu->utime, e->last_imu_utime) > silence) {
+        const int64_t silence = vl_limit_us(e->cfg.max_imu_silence);
+        if (vl_utime_diff(imu->utime, e->last_imu_utime) > silence) {
             /* The held velocity is trusted for max_imu_silence; the motion after that
              * is unknown, so the clock jumps over it rather than invent it. */
             if (!e->imu_silent) {
                 e->counters.imu_silences++;
             }
-            log_msg(e, VL_LOG_WARN, imu->utime, "IMU back after a silence; the motion during it is not propagated");
+            vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU back after a silence; the motion during it is not propagated");
             propagate_to(e, e->last_imu_utime + silence);
             e->state_utime = imu->utime;
         } else {
@@ -1073,6 +901,17 @@ static double depth_of(const vl_calibration_t *cal, double disparity)
     return cal->fx * cal->baseline / disparity;
 }
 
+/* A pending track's world point and its covariance from pixel noise alone, from observation y. */
+static void pending_triangulate(const vl_estimator_t *e, const double y[3], vl_pending_track_t *t)
+{
+    double J[9], nv[3], tmp[9];
+    vl_camera_triangulate_world(e, y, t->point, J);
+    vl_stereo_noise_var(e->pixel_var, nv);
+    const double noise[9] = {nv[0], 0, 0, 0, nv[1], 0, 0, 0, nv[2]};
+    vl_matmul(J, noise, tmp, 3, 3, 3);
+    vl_matmul_bt(tmp, J, t->covariance, 3, 3, 3);
+}
+
 /*
  * Does a candidate's observation agree with the point its previous observation
  * gave? The comparison allows for that point's pixel noise, one step of motion
@@ -1084,18 +923,19 @@ static int track_consistent(const vl_estimator_t *e, const vl_pending_track_t *t
         return 1;
     }
     double y_pred[3], Hp[18], Hx[9];
-    if (project_world_point(e, t->point, y_pred, Hp, Hx) != 0) {
+    if (vl_camera_project_world(e, t->point, y_pred, Hp, Hx) != 0) {
         return 0;
     }
     const double sv2 = e->linear_velocity_var * dt * dt;
     const double sw2 = e->angular_velocity_var * dt * dt;
-    const double s2 = e->pixel_var;
+    double nv[3];
+    vl_stereo_noise_var(e->pixel_var, nv);
     double S[9], tmp[9], HQ[18];
     vl_matmul(Hx, t->covariance, tmp, 3, 3, 3);
     vl_matmul_bt(tmp, Hx, S, 3, 3, 3);
     for (int r = 0; r < 3; ++r) {
         for (int j = 0; j < 6; ++j) {
-            HQ[6 * r + j] = Hp[6 * r + j] * (j < 3 ? sv2 : sw2);
+            HQ[6 * r + j] = Hp[6 * r + j] * (j < VL_IDX_PHI ? sv2 : sw2);
         }
     }
     double HQH[9];
@@ -1103,11 +943,11 @@ static int track_consistent(const vl_estimator_t *e, const vl_pending_track_t *t
     for (int i = 0; i < 9; ++i) {
         S[i] += HQH[i];
     }
-    S[0] += s2;
-    S[4] += 0.5 * s2;
-    S[8] += s2;
+    S[0] += nv[0];
+    S[4] += nv[1];
+    S[8] += nv[2];
     const double r[3] = {y[0] - y_pred[0], y[1] - y_pred[1], y[2] - y_pred[2]};
-    return mahalanobis3(S, r) <= e->cfg.gate_chi2;
+    return vl_mahalanobis3(S, r) <= e->cfg.gate_chi2;
 }
 
 /* Candidate for admission, ordered by score. */
@@ -1129,6 +969,14 @@ static void add_candidate(candidates_t *c, uint32_t obs, double score)
         c->item[c->count].score = score;
         c->count++;
     }
+}
+
+/* Larger disparity (nearer, better conditioned) and longer tracks go first. */
+static double admission_score(double disparity, uint32_t frames_seen)
+{
+    const uint32_t age = frames_seen - 1u;
+    const uint32_t counted = age < VL_ADMISSION_AGE_CAP ? age : VL_ADMISSION_AGE_CAP;
+    return disparity * (1.0 + VL_ADMISSION_AGE_BONUS * (double)counted);
 }
 
 static int disparity_admissible(const vl_estimator_t *e, double disparity)
@@ -1159,11 +1007,11 @@ static uint32_t classify_observations(vl_estimator_t *e, const vl_stereo_frame_t
         const double disparity = o->u_left - o->u_right;
         const int slot = find_slot(e, o->id);
         if (slot >= 0) {
-            if (e->work_seen[slot]) {
+            if (e->work_seen[slot] != VL_SEEN_NONE) {
                 e->counters.observations_invalid++; /* the same id twice in one frame */
                 continue;
             }
-            e->work_seen[slot] = 1;
+            e->work_seen[slot] = VL_SEEN;
             vl_landmark_slot_t *s = &e->slots[slot];
             s->unseen_frames = 0;
             s->last_utime = frame->utime;
@@ -1203,11 +1051,9 @@ static uint32_t classify_observations(vl_estimator_t *e, const vl_stereo_frame_t
             e->counters.tracks_inconsistent++;
             t->frames_seen = 1;
         }
-        triangulate_world(e, y, t->point, t->covariance);
+        pending_triangulate(e, y, t);
         if (t->frames_seen >= e->cfg.min_track_length) {
-            /* Larger disparity (nearer, better conditioned) and longer tracks go first. */
-            const uint32_t age = t->frames_seen - 1u;
-            add_candidate(candidates, i, disparity * (1.0 + 0.5 * (double)(age < 4u ? age : 4u)));
+            add_candidate(candidates, i, admission_score(disparity, t->frames_seen));
         }
     }
     return k;
@@ -1217,7 +1063,7 @@ static uint32_t classify_observations(vl_estimator_t *e, const vl_stereo_frame_t
 static void break_all_rows(vl_estimator_t *e, uint32_t k)
 {
     for (uint32_t i = 0; i < k; ++i) {
-        e->work_seen[e->work_slot[i]] = 2;
+        e->work_seen[e->work_slot[i]] = VL_SEEN_BROKEN;
         e->work_broken[e->num_broken++] = e->work_frame_obs[i];
     }
 }
@@ -1271,7 +1117,7 @@ static vl_status_t update_with_rows(vl_estimator_t *e, const vl_stereo_frame_t *
     }
     double prior_diag[6];
     for (uint32_t i = 0; i < 6; ++i) {
-        prior_diag[i] = *P_at(e, i, i);
+        prior_diag[i] = *vl_P_at(e, i, i);
     }
     vl_status_t st = apply_update(e, rows, inliers);
     if (st == VL_OK && inliers > 0 && e->cfg.adaptive_noise) {
@@ -1297,10 +1143,10 @@ static void retire_landmarks(vl_estimator_t *e)
 {
     /* Walk down: marginalizing moves the last slot into the freed one. */
     for (uint32_t s = e->num_landmarks; s-- > 0;) {
-        if (e->work_seen[s] == 2) {
+        if (e->work_seen[s] == VL_SEEN_BROKEN) {
             marginalize_slot(e, s);
             e->counters.tracks_broken++;
-        } else if (!e->work_seen[s] && ++e->slots[s].unseen_frames > e->cfg.max_unseen_frames) {
+        } else if (e->work_seen[s] == VL_SEEN_NONE && ++e->slots[s].unseen_frames > e->cfg.max_unseen_frames) {
             marginalize_slot(e, s);
         }
     }
@@ -1312,7 +1158,7 @@ static int eviction_victim(const vl_estimator_t *e)
     int victim = -1;
     uint32_t longest = 0;
     for (uint32_t s = 0; s < e->num_landmarks; ++s) {
-        if (!e->work_seen[s] && e->slots[s].unseen_frames >= longest) {
+        if (e->work_seen[s] == VL_SEEN_NONE && e->slots[s].unseen_frames >= longest) {
             longest = e->slots[s].unseen_frames;
             victim = (int)s;
         }
@@ -1407,20 +1253,20 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         e->counters.frames_rejected++;
         if (time_st == VL_ERR_TIME_JUMP) {
             e->counters.time_jumps++;
-            log_msg(e, VL_LOG_WARN, frame->utime, "frame jumping in time rejected");
+            vl_log_msg(e, VL_LOG_WARN, frame->utime, "frame jumping in time rejected");
         } else {
-            log_msg(e, VL_LOG_WARN, frame->utime, "frame out of time order rejected");
+            vl_log_msg(e, VL_LOG_WARN, frame->utime, "frame out of time order rejected");
         }
         return time_st;
     }
     time_passed(e, frame->utime);
-    if (utime_diff(frame->utime, e->last_imu_utime) > limit_us(e->cfg.max_imu_silence)) {
+    if (vl_utime_diff(frame->utime, e->last_imu_utime) > vl_limit_us(e->cfg.max_imu_silence)) {
         e->counters.frames_rejected++;
         e->counters.frames_imu_silent++;
         if (!e->imu_silent) {
             e->imu_silent = 1;
             e->counters.imu_silences++;
-            log_msg(e, VL_LOG_WARN, frame->utime, "IMU silent longer than max_imu_silence; frames refused");
+            vl_log_msg(e, VL_LOG_WARN, frame->utime, "IMU silent longer than max_imu_silence; frames refused");
         }
         return VL_ERR_IMU_SILENT;
     }
@@ -1430,7 +1276,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     if (count > VL_MAX_FRAME_FEATURES) {
         e->counters.frames_truncated++;
         e->counters.observations_truncated += count - VL_MAX_FRAME_FEATURES;
-        log_msg(e, VL_LOG_WARN, frame->utime, "frame over VL_MAX_FRAME_FEATURES truncated");
+        vl_log_msg(e, VL_LOG_WARN, frame->utime, "frame over VL_MAX_FRAME_FEATURES truncated");
         count = VL_MAX_FRAME_FEATURES;
         result = VL_FRAME_TRUNCATED;
     }
@@ -1444,7 +1290,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     e->num_prev_obs = count;
     memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
     propagate_to(e, frame->utime);
-    const double frame_dt = e->have_frame ? (double)utime_diff(frame->utime, e->last_frame_utime) * 1e-6 : 0.0;
+    const double frame_dt = e->have_frame ? (double)vl_utime_diff(frame->utime, e->last_frame_utime) * 1e-6 : 0.0;
     e->last_frame_utime = frame->utime;
     e->have_frame = 1;
     e->frame_index++;
@@ -1453,7 +1299,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         return guard_divergence(e, frame->utime, result);
     }
 
-    memset(e->work_seen, 0, sizeof(e->work_seen));
+    memset(e->work_seen, VL_SEEN_NONE, sizeof(e->work_seen));
     e->num_broken = 0;
     candidates_t candidates;
     candidates.count = 0;
@@ -1462,7 +1308,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     const uint64_t used_before = e->counters.observations_used;
     const vl_status_t st = update_with_rows(e, frame, k);
     if (st != VL_OK) {
-        log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
+        vl_log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
         result = st;
     }
     /* A frame whose update was refused or contradicted the state extends the run;
@@ -1492,7 +1338,7 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
     double P6[36], Ad[36], Rt[9], pinv[3], tmp[36];
     for (int i = 0; i < 6; ++i) {
         for (int j = 0; j < 6; ++j) {
-            P6[6 * i + j] = e->P[(size_t)j * LD + i];
+            P6[6 * i + j] = e->P[(size_t)j * VL_LD + i];
         }
     }
     for (int i = 0; i < 3; ++i) {
@@ -1522,8 +1368,8 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
     out->linear_velocity_noise = sqrt(e->linear_velocity_var);
     out->angular_velocity_noise = sqrt(e->angular_velocity_var);
     out->pixel_noise = sqrt(e->pixel_var);
-    if (!all_finite(out->rotation, 9) || !all_finite(out->position, 3) || !all_finite(out->covariance, 36) ||
-        !all_finite(out->linear_velocity, 3) || !all_finite(out->angular_velocity, 3)) {
+    if (!vl_all_finite(out->rotation, 9) || !vl_all_finite(out->position, 3) || !vl_all_finite(out->covariance, 36) ||
+        !vl_all_finite(out->linear_velocity, 3) || !vl_all_finite(out->angular_velocity, 3)) {
         return VL_ERR_NON_FINITE;
     }
     return VL_OK;
