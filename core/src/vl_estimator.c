@@ -21,20 +21,15 @@
 
 #include "vl_camera.h"
 #include "vl_estimator_internal.h"
+#include "vl_guard.h"
 #include "vl_linalg.h"
+#include "vl_noise.h"
+#include "vl_predict.h"
 #include "vl_se3.h"
 #include "vl_stereo.h"
 
 /* Fewer tracked observations than this never count as a re-association. */
 #define VL_MIN_ROWS_FOR_REASSOCIATION 8
-/* Adapted noise stays within this factor (of the std) of its configured value, either way. */
-#define VL_NOISE_ADAPT_RANGE 100.0
-/* Rows of evidence the pixel noise estimate averages over (its forgetting scale). */
-#define VL_PIXEL_NOISE_MEMORY 1000.0
-/* Step of the velocity noise in log-variance per frame, at a frame that fully informs the pose. */
-#define VL_VELOCITY_NOISE_GAIN 0.05
-/* Variance factor applied when frame after frame contradicts the prior. */
-#define VL_NOISE_WIDEN_ON_CONTRADICTION 4.0
 
 /* Admission score bonus per frame of track age (frames seen before this one)... */
 #define VL_ADMISSION_AGE_BONUS 0.5
@@ -45,82 +40,6 @@ typedef char vl_assert_capacity_positive[(VL_MAX_LANDMARKS >= 1) ? 1 : -1];
 typedef char vl_assert_capacity_bounded[(VL_MAX_LANDMARKS <= 4096) ? 1 : -1];
 typedef char vl_assert_frame_capacity[(VL_MAX_FRAME_FEATURES >= 1) ? 1 : -1];
 typedef char vl_assert_pending_capacity[(VL_MAX_PENDING >= VL_MAX_FRAME_FEATURES) ? 1 : -1];
-
-/* ---------------------------------------------------------------- prediction */
-
-static void propagate_to(vl_estimator_t *e, int64_t utime)
-{
-    const double tau = (double)vl_utime_diff(utime, e->state_utime) * 1e-6;
-    if (tau <= 0.0) {
-        return;
-    }
-    if (tau > e->cfg.max_propagation_dt) {
-        e->counters.time_gaps++;
-        vl_log_msg(e, VL_LOG_WARN, utime, "long gap between inputs; propagating across it");
-    }
-
-    double xi[6], dR[9], dp[3];
-    for (int i = 0; i < 3; ++i) {
-        xi[i] = tau * (e->held_linear[i] - e->offset_linear[i]);
-        xi[3 + i] = tau * (e->held_angular[i] - e->offset_angular[i]);
-    }
-    vl_se3_exp(xi, dR, dp);
-
-    /* T <- T exp(tau u) */
-    double Rn[9], t[3];
-    vl_matmul(e->R, dR, Rn, 3, 3, 3);
-    vl_matmul(e->R, dp, t, 3, 3, 1);
-    memcpy(e->R, Rn, sizeof(Rn));
-    vl_so3_normalize(e->R);
-    for (int i = 0; i < 3; ++i) {
-        e->p[i] += t[i];
-    }
-    e->state_utime = utime;
-
-    /*
-     * Input noise n and offset error db both act as u -> u - n - db, which moves
-     * the pose error by G (n + db) with G = -tau Ad(T_new) J_r(tau u), and each
-     * landmark error by hat(l_i) times its rotation rows (the world turns under
-     * the landmarks, which stay put).
-     */
-    double Ad[36], Jr[36], Gp[36];
-    vl_se3_adjoint(e->R, e->p, Ad);
-    vl_se3_right_jacobian(xi, Jr);
-    vl_matmul(Ad, Jr, Gp, 6, 6, 6);
-    for (int i = 0; i < 36; ++i) {
-        Gp[i] *= -tau;
-    }
-    const uint32_t n = vl_state_dim(e);
-    double *G = e->work_PHt; /* n x 6, column-major; the update workspace is free here */
-    for (int j = 0; j < 6; ++j) {
-        double *col = &G[(size_t)j * n];
-        for (int i = 0; i < 6; ++i) {
-            col[i] = Gp[6 * i + j];
-            col[6 + i] = 0.0;
-        }
-        const double *phi_rows = &Gp[6 * VL_IDX_PHI + j]; /* column j of the rotation rows, stride 6 */
-        const double psi[3] = {phi_rows[0], phi_rows[6], phi_rows[12]};
-        for (uint32_t s = 0; s < e->num_landmarks; ++s) {
-            double *g = &col[vl_landmark_col(s)];
-            if (e->cfg.mode == VL_MODE_MAPPING) {
-                g[0] = g[1] = g[2] = 0.0; /* the trajectory is taken as known */
-                continue;
-            }
-            const double *l = vl_landmark_point(e, s);
-            g[0] = l[1] * psi[2] - l[2] * psi[1];
-            g[1] = l[2] * psi[0] - l[0] * psi[2];
-            g[2] = l[0] * psi[1] - l[1] * psi[0];
-        }
-    }
-    const double sv2 = e->linear_velocity_var;
-    const double sw2 = e->angular_velocity_var;
-    const double noise_var[6] = {sv2, sv2, sv2, sw2, sw2, sw2};
-    const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
-    const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
-    const double offset_var[6] = {qv, qv, qv, qw, qw, qw};
-    vl_la_propagate(e->P, VL_LD, (int)n, G, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL,
-                    e->work_PHt + (size_t)6 * n);
-}
 
 /* ---------------------------------------------------------------- window */
 
@@ -440,117 +359,6 @@ static vl_status_t apply_update(vl_estimator_t *e, const vl_la_obs_t *rows, uint
     return VL_OK;
 }
 
-/* ---------------------------------------------------------------- noise adaptation */
-
-/* Keeps a variance within the adaptation's bounds around its configured value. */
-static double clamp_var(double var, double configured_std)
-{
-    const double f = VL_NOISE_ADAPT_RANGE;
-    const double lo = configured_std * configured_std / (f * f), hi = configured_std * configured_std * f * f;
-    return var < lo ? lo : (var > hi ? hi : var);
-}
-
-/* The k-th smallest of v[0..n) (0-based); reorders v. Quickselect with a middle pivot: deterministic. */
-static double select_kth(double *v, uint32_t n, uint32_t k)
-{
-    uint32_t lo = 0, hi = n - 1u;
-    while (lo < hi) {
-        const double pivot = v[lo + (hi - lo) / 2u];
-        uint32_t i = lo, j = hi;
-        while (i <= j) {
-            while (v[i] < pivot) {
-                ++i;
-            }
-            while (v[j] > pivot) {
-                --j;
-            }
-            if (i <= j) {
-                const double t = v[i];
-                v[i] = v[j];
-                v[j] = t;
-                ++i;
-                if (j == 0u) {
-                    break;
-                }
-                --j;
-            }
-        }
-        if (k <= j) {
-            hi = j;
-        } else if (k >= i) {
-            lo = i;
-        } else {
-            return v[k];
-        }
-    }
-    return v[k];
-}
-
-/*
- * Residual-based covariance matching for the pixel noise, made robust. After the
- * update, an observation's post-fit residual e has E[e e^T] = R - H P+ H^T, so
- * each row gives (e_r^2 + (H P+ H^T)_rr) / w_r as a sample of the pixel variance
- * (w_r the row's share: 1, 1/2, 1). The median over every row of the frame,
- * outliers included, scaled to a variance (the median of chi-square(1) is 0.455),
- * is blind to a minority of outliers and is not truncated by the inlier
- * selection. It enters an average that forgets faster the more rows a frame has.
- */
-static void adapt_pixel_noise(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
-{
-    static const double share[3] = {1.0, 0.5, 1.0};
-    double samples[VL_OBS_DIM * VL_MAX_LANDMARKS];
-    uint32_t n = 0;
-    for (uint32_t i = 0; i < k; ++i) {
-        double S[9];
-        vl_la_obs_covariance(e->P, VL_LD, &rows[i], S); /* H P+ H^T + R */
-        for (int r = 0; r < 3; ++r) {
-            double res = rows[i].residual[r];
-            for (int j = 0; j < 6; ++j) {
-                res -= rows[i].H_pose[6 * r + j] * e->work_dx[j];
-            }
-            for (int j = 0; j < 3; ++j) {
-                res -= rows[i].H_landmark[3 * r + j] * e->work_dx[rows[i].landmark_col + j];
-            }
-            samples[n++] = (res * res + S[4 * r] - rows[i].noise_var[r]) / share[r];
-        }
-    }
-    if (n < 3u) {
-        return;
-    }
-    const double sample = select_kth(samples, n, n / 2u) / 0.455;
-    const double w = 1.0 - exp(-(double)k / VL_PIXEL_NOISE_MEMORY);
-    e->pixel_var = clamp_var((1.0 - w) * e->pixel_var + w * sample, e->cfg.pixel_noise);
-}
-
-/*
- * Covariance matching for the velocity noise on the pose correction: for a
- * consistent filter E[dx dx^T] = P- - P+ on the pose block. More correction than
- * the filter expected means its prediction was too confident (noise too small),
- * less means too timid. Each variance moves by a fraction of log(ratio), weighted
- * by how much the frame informed that block, so weak frames barely move it.
- */
-static void adapt_velocity_noise(vl_estimator_t *e, const double prior_diag[6])
-{
-    const double *dx = e->work_dx;
-    double *var[2] = {&e->linear_velocity_var, &e->angular_velocity_var};
-    const double configured[2] = {e->cfg.linear_velocity_noise, e->cfg.angular_velocity_noise};
-    for (int b = 0; b < 2; ++b) {
-        double expected = 0.0, seen = 0.0, prior = 0.0;
-        for (int i = 3 * b; i < 3 * b + 3; ++i) {
-            prior += prior_diag[i];
-            expected += prior_diag[i] - *vl_P_at(e, (uint32_t)i, (uint32_t)i);
-            seen += dx[i] * dx[i];
-        }
-        if (!(expected > 1e-12 * prior) || !(prior > 0.0)) {
-            continue;
-        }
-        double ratio = seen / expected;
-        ratio = ratio < 0.1 ? 0.1 : (ratio > 10.0 ? 10.0 : ratio);
-        const double gain = VL_VELOCITY_NOISE_GAIN * (expected / prior);
-        *var[b] = clamp_var(*var[b] * exp(gain * log(ratio)), configured[b]);
-    }
-}
-
 /*
  * Re-linearizes the rejected rows (rows[first .. first + count)) at the corrected
  * state, keeps those within gate_chi2 of their posterior innovation covariance,
@@ -679,130 +487,16 @@ vl_status_t vl_reset(vl_estimator_t *e)
     return VL_OK;
 }
 
-typedef enum { INPUT_IMU, INPUT_FRAME } input_kind_t;
-
-/*
- * The time policy (the first IMU sample sets the clock without it): an input
- * farther than max_time_jump from the clock, either way, is a jump; otherwise
- * each kind must move forward as before.
- */
-static vl_status_t check_time(const vl_estimator_t *e, input_kind_t kind, int64_t utime)
-{
-    const int64_t limit = vl_limit_us(e->cfg.max_time_jump);
-    const int64_t d = vl_utime_diff(utime, e->clock_utime);
-    if (d > limit || d < -limit) {
-        return VL_ERR_TIME_JUMP;
-    }
-    if (kind == INPUT_IMU) {
-        return (utime <= e->last_imu_utime || utime < e->state_utime) ? VL_ERR_TIME_ORDER : VL_OK;
-    }
-    return (utime < e->state_utime || (e->have_frame && utime <= e->last_frame_utime)) ? VL_ERR_TIME_ORDER : VL_OK;
-}
-
-/* An input passed the time policy: the clock follows it and no new timeline is pending. */
-static void time_passed(vl_estimator_t *e, int64_t utime)
-{
-    if (utime > e->clock_utime) {
-        e->clock_utime = utime;
-    }
-    e->timeline_count = 0;
-}
-
-/*
- * A time-refused input. Consecutive ones that follow one another (each within
- * max_time_jump of the previous, each kind strictly forward, so a stuck clock
- * never qualifies) are a candidate timeline; any input that passes the policy
- * ends it. Returns nonzero when the candidate has new_timeline_samples inputs.
- */
-static int note_timeline(vl_estimator_t *e, input_kind_t kind, int64_t utime)
-{
-    int follows = e->timeline_count > 0;
-    if (follows) {
-        const int64_t limit = vl_limit_us(e->cfg.max_time_jump);
-        const int64_t d = vl_utime_diff(utime, e->timeline_last_utime);
-        follows = d <= limit && d >= -limit;
-        if (kind == INPUT_IMU && e->timeline_have_imu && utime <= e->timeline_last_imu_utime) {
-            follows = 0;
-        }
-        if (kind == INPUT_FRAME && e->timeline_have_frame && utime <= e->timeline_last_frame_utime) {
-            follows = 0;
-        }
-    }
-    if (!follows) {
-        e->timeline_count = 0;
-        e->timeline_have_imu = 0;
-        e->timeline_have_frame = 0;
-    }
-    e->timeline_count++;
-    e->timeline_last_utime = utime;
-    if (kind == INPUT_IMU) {
-        e->timeline_have_imu = 1;
-        e->timeline_last_imu_utime = utime;
-    } else {
-        e->timeline_have_frame = 1;
-        e->timeline_last_frame_utime = utime;
-    }
-    return e->timeline_count >= e->cfg.new_timeline_samples;
-}
-
-/*
- * The divergence guard: a non-finite state, a covariance with a negative or
- * non-finite diagonal or a core block violating |P_ij| <= sqrt(P_ii P_jj) (a
- * necessary condition of positive semi-definiteness, cheap enough for every
- * step), or, in SLAM, divergence_frames failed updates in a row.
- */
-static int diverged(const vl_estimator_t *e)
-{
-    if (!vl_all_finite(e->R, 9) || !vl_all_finite(e->p, 3) || !vl_all_finite(e->offset_linear, 3) ||
-        !vl_all_finite(e->offset_angular, 3) || !vl_all_finite(e->landmark_state, 3 * (int)e->num_landmarks)) {
-        return 1;
-    }
-    const uint32_t n = vl_state_dim(e);
-    for (uint32_t i = 0; i < n; ++i) {
-        const double d = e->P[(size_t)i * VL_LD + i];
-        if (!(d >= 0.0) || !isfinite(d)) {
-            return 1;
-        }
-    }
-    for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
-        for (uint32_t i = 0; i < j; ++i) {
-            const double pij = e->P[(size_t)j * VL_LD + i];
-            const double bound = e->P[(size_t)i * VL_LD + i] * e->P[(size_t)j * VL_LD + j];
-            if (!isfinite(pij) || pij * pij > bound * (1.0 + 1e-6)) {
-                return 1;
-            }
-        }
-    }
-    return e->cfg.mode == VL_MODE_SLAM && e->cfg.divergence_frames > 0 &&
-           e->failed_frame_run >= e->cfg.divergence_frames;
-}
-
 /* After an input was used: a diverged estimator restarts (VL_RESET), else result stands. */
 static vl_status_t guard_divergence(vl_estimator_t *e, int64_t utime, vl_status_t result)
 {
-    if (!diverged(e)) {
+    if (!vl_guard_diverged(e)) {
         return result;
     }
     reset_state(e, 1);
     e->counters.divergence_resets++;
     vl_log_msg(e, VL_LOG_ERROR, utime, "estimator diverged; re-initialized with the same configuration");
     return VL_RESET;
-}
-
-/* Euclidean length of a finite 3-vector, scaled so that squaring cannot overflow. */
-static double norm3(const double v[3])
-{
-    const double m = fmax(fabs(v[0]), fmax(fabs(v[1]), fabs(v[2])));
-    if (m == 0.0) {
-        return 0.0;
-    }
-    const double a = v[0] / m, b = v[1] / m, c = v[2] / m;
-    return m * sqrt(a * a + b * b + c * c);
-}
-
-static int imu_plausible(const vl_estimator_t *e, const vl_imu_sample_t *imu)
-{
-    return norm3(imu->linear_velocity) <= e->cfg.max_speed && norm3(imu->angular_velocity) <= e->cfg.max_rotation_rate;
 }
 
 vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
@@ -818,7 +512,7 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
         vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample with NaN or infinity rejected");
         return VL_ERR_NON_FINITE;
     }
-    if (!imu_plausible(e, imu)) {
+    if (!vl_guard_imu_plausible(e, imu)) {
         e->counters.imu_rejected++;
         e->counters.imu_implausible++;
         vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample beyond max_speed or max_rotation_rate rejected");
@@ -826,9 +520,9 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
     }
     vl_status_t result = VL_OK;
     if (e->have_imu) {
-        const vl_status_t st = check_time(e, INPUT_IMU, imu->utime);
+        const vl_status_t st = vl_guard_check_time(e, VL_INPUT_IMU, imu->utime);
         if (st != VL_OK) {
-            if (!note_timeline(e, INPUT_IMU, imu->utime)) {
+            if (!vl_guard_note_timeline(e, VL_INPUT_IMU, imu->utime)) {
                 e->counters.imu_rejected++;
                 if (st == VL_ERR_TIME_JUMP) {
                     e->counters.time_jumps++;
@@ -846,20 +540,20 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
         }
     }
     if (e->have_imu) {
-        const int64_t silence = vl_limit_us(e->cfg.max_imu_silence);
-        if (vl_utime_diff(imu->utime, e->last_imu_utime) > silence) {
+        if (vl_guard_imu_silent_at(e, imu->utime)) {
             /* The held velocity is trusted for max_imu_silence; the motion after that
              * is unknown, so the clock jumps over it rather than invent it. */
             if (!e->imu_silent) {
                 e->counters.imu_silences++;
             }
-            vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU back after a silence; the motion during it is not propagated");
-            propagate_to(e, e->last_imu_utime + silence);
+            vl_log_msg(e, VL_LOG_WARN, imu->utime,
+                       "IMU back after a silence; the motion during it is not propagated");
+            vl_predict_to(e, e->last_imu_utime + vl_limit_us(e->cfg.max_imu_silence));
             e->state_utime = imu->utime;
         } else {
-            propagate_to(e, imu->utime);
+            vl_predict_to(e, imu->utime);
         }
-        time_passed(e, imu->utime);
+        vl_guard_time_passed(e, imu->utime);
     } else {
         e->state_utime = imu->utime;
         e->clock_utime = imu->utime;
@@ -872,28 +566,6 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
     e->last_imu_utime = imu->utime;
     e->counters.imu_accepted++;
     return guard_divergence(e, imu->utime, result);
-}
-
-/* Observation validity before any use: finite pixels and a real id. */
-static int observation_valid(const vl_stereo_obs_t *o)
-{
-    return o->id >= 0 && isfinite(o->u_left) && isfinite(o->v_left) && isfinite(o->u_right) &&
-           isfinite(o->v_right);
-}
-
-/*
- * Physically possible: every pixel inside the image (image_width x image_height,
- * 2 cx x 2 cy when 0) widened by image_margin, and a disparity no larger than
- * max_disparity.
- */
-static int observation_plausible(const vl_estimator_t *e, const vl_stereo_obs_t *o)
-{
-    const vl_config_t *c = &e->cfg;
-    const double m = c->image_margin;
-    const double w = (c->image_width > 0.0 ? c->image_width : 2.0 * c->calibration.cx) + m;
-    const double h = (c->image_height > 0.0 ? c->image_height : 2.0 * c->calibration.cy) + m;
-    return o->u_left >= -m && o->u_left <= w && o->u_right >= -m && o->u_right <= w && o->v_left >= -m &&
-           o->v_left <= h && o->v_right >= -m && o->v_right <= h && o->u_left - o->u_right <= c->max_disparity;
 }
 
 static double depth_of(const vl_calibration_t *cal, double disparity)
@@ -996,11 +668,11 @@ static uint32_t classify_observations(vl_estimator_t *e, const vl_stereo_frame_t
     uint32_t k = 0;
     for (uint32_t i = 0; i < count; ++i) {
         const vl_stereo_obs_t *o = &frame->obs[i];
-        if (!observation_valid(o)) {
+        if (!vl_guard_observation_valid(o)) {
             e->counters.observations_invalid++;
             continue;
         }
-        if (!observation_plausible(e, o)) {
+        if (!vl_guard_observation_plausible(e, o)) {
             e->counters.observations_implausible++;
             continue;
         }
@@ -1089,13 +761,8 @@ static vl_status_t update_with_rows(vl_estimator_t *e, const vl_stereo_frame_t *
         e->counters.frames_reassociated++;
         e->counters.observations_gated += k;
         break_all_rows(e, k);
-        /* A tracker re-associates on single frames; frame after frame contradicting
-         * the prior means the prior is overconfident: widen the motion noise. */
-        if (e->cfg.adaptive_noise && ++e->reassociated_run >= 2) {
-            const double f = VL_NOISE_WIDEN_ON_CONTRADICTION;
-            e->linear_velocity_var = clamp_var(e->linear_velocity_var * f, e->cfg.linear_velocity_noise);
-            e->angular_velocity_var = clamp_var(e->angular_velocity_var * f, e->cfg.angular_velocity_noise);
-            e->pixel_var = clamp_var(e->pixel_var * f, e->cfg.pixel_noise);
+        if (e->cfg.adaptive_noise && ++e->reassociated_run >= VL_NOISE_CONTRADICTION_RUN) {
+            vl_noise_widen(e);
         }
         return VL_OK;
     }
@@ -1121,8 +788,8 @@ static vl_status_t update_with_rows(vl_estimator_t *e, const vl_stereo_frame_t *
     }
     vl_status_t st = apply_update(e, rows, inliers);
     if (st == VL_OK && inliers > 0 && e->cfg.adaptive_noise) {
-        adapt_pixel_noise(e, rows, k);
-        adapt_velocity_noise(e, prior_diag);
+        vl_noise_adapt_pixel(e, rows, k);
+        vl_noise_adapt_velocity(e, prior_diag);
     }
     if (st != VL_OK || rest == 0) {
         e->counters.observations_gated += rest;
@@ -1210,31 +877,6 @@ static void admit_candidates(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     pending_compact(e);
 }
 
-/*
- * A frame that repeats the previous frame's pixels exactly, for every id the two
- * share, is the same image delivered twice: the vehicle moved on, the image did not.
- */
-static int frame_repeats_previous(const vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count)
-{
-    uint32_t common = 0;
-    for (uint32_t i = 0; i < count; ++i) {
-        const vl_stereo_obs_t *o = &frame->obs[i];
-        for (uint32_t j = 0; j < e->num_prev_obs; ++j) {
-            const vl_stereo_obs_t *q = &e->prev_obs[j];
-            if (q->id != o->id) {
-                continue;
-            }
-            if (q->u_left != o->u_left || q->v_left != o->v_left || q->u_right != o->u_right ||
-                q->v_right != o->v_right) {
-                return 0;
-            }
-            common++;
-            break;
-        }
-    }
-    return common > 0;
-}
-
 vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
 {
     if (e == NULL || frame == NULL) {
@@ -1246,10 +888,10 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         }
         return VL_ERR_NOT_READY;
     }
-    const vl_status_t time_st = check_time(e, INPUT_FRAME, frame->utime);
+    const vl_status_t time_st = vl_guard_check_time(e, VL_INPUT_FRAME, frame->utime);
     if (time_st != VL_OK) {
         /* A frame adds to a candidate timeline; the restart waits for an IMU sample to set the clock. */
-        (void)note_timeline(e, INPUT_FRAME, frame->utime);
+        (void)vl_guard_note_timeline(e, VL_INPUT_FRAME, frame->utime);
         e->counters.frames_rejected++;
         if (time_st == VL_ERR_TIME_JUMP) {
             e->counters.time_jumps++;
@@ -1259,8 +901,8 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         }
         return time_st;
     }
-    time_passed(e, frame->utime);
-    if (vl_utime_diff(frame->utime, e->last_imu_utime) > vl_limit_us(e->cfg.max_imu_silence)) {
+    vl_guard_time_passed(e, frame->utime);
+    if (vl_guard_imu_silent_at(e, frame->utime)) {
         e->counters.frames_rejected++;
         e->counters.frames_imu_silent++;
         if (!e->imu_silent) {
@@ -1284,12 +926,12 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     /* Counted, and still used: after a repeated image the tracker's frames stay one
      * step behind the clock, so the repeat keeps the vision's timeline coherent
      * (skipping repeats measured worse on every density of the real drives). */
-    if (frame_repeats_previous(e, frame, count)) {
+    if (vl_guard_frame_repeats_previous(e, frame, count)) {
         e->counters.frames_repeated++;
     }
     e->num_prev_obs = count;
     memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
-    propagate_to(e, frame->utime);
+    vl_predict_to(e, frame->utime);
     const double frame_dt = e->have_frame ? (double)vl_utime_diff(frame->utime, e->last_frame_utime) * 1e-6 : 0.0;
     e->last_frame_utime = frame->utime;
     e->have_frame = 1;
