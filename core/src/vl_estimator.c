@@ -1,10 +1,15 @@
 /*
- * The estimator: prediction on SE(3), stereo landmark initialization, the joint
- * update, and the bounded landmark window with exact marginalization.
+ * The estimator: the public API, and the algorithm as a sequence of steps whose
+ * parts live beside this file: prediction (vl_predict), the landmark window
+ * (vl_window), outlier handling (vl_outliers), the update (vl_update), the noise
+ * adaptation (vl_noise) and the guards on inputs and state (vl_guard), with the
+ * stereo rig at the current pose in vl_camera.
  *
- * State order: [rho, phi (pose), linear offset, angular offset, landmark 0, ...].
- * Offsets are always present in the layout; with estimate_input_offsets off
- * their covariance stays zero, so they never move.
+ * An IMU sample: checks, prediction to its time, then it is held. A frame:
+ * checks, prediction to its time, its observations sorted into update rows and
+ * admission candidates, the rows fused (gate, re-association, RANSAC, the joint
+ * update, noise adaptation, rescue), ended and broken tracks retired to the map,
+ * the candidates admitted. After every used input, the divergence guard.
  *
  * Errors are invariant (world-frame) errors of the group SE_{K+1}(3) formed by the
  * pose and the landmarks: T = exp(xi) T_hat, l_i = exp(phi) l_hat_i + J_l(phi) rho_i.
@@ -21,747 +26,22 @@
 #include <math.h>
 #include <string.h>
 
+#include "vl_estimator_internal.h"
+#include "vl_guard.h"
 #include "vl_linalg.h"
+#include "vl_noise.h"
+#include "vl_outliers.h"
+#include "vl_predict.h"
 #include "vl_se3.h"
-#include "vl_stereo.h"
-
-#define LD VL_STATE_DIM_MAX
-#define IDX_OFFSET_LIN 6
-#define IDX_OFFSET_ANG 9
-/* Fewer tracked observations than this never count as a re-association. */
-#define VL_MIN_ROWS_FOR_REASSOCIATION 8
-/* Adapted noise stays within this factor (of the std) of its configured value, either way. */
-#define VL_NOISE_ADAPT_RANGE 100.0
-/* Rows of evidence the pixel noise estimate averages over (its forgetting scale). */
-#define VL_PIXEL_NOISE_MEMORY 1000.0
-/* Step of the velocity noise in log-variance per frame, at a frame that fully informs the pose. */
-#define VL_VELOCITY_NOISE_GAIN 0.05
-/* Variance factor applied when frame after frame contradicts the prior. */
-#define VL_NOISE_WIDEN_ON_CONTRADICTION 4.0
+#include "vl_update.h"
+#include "vl_window.h"
 
 typedef char vl_assert_capacity_positive[(VL_MAX_LANDMARKS >= 1) ? 1 : -1];
 typedef char vl_assert_capacity_bounded[(VL_MAX_LANDMARKS <= 4096) ? 1 : -1];
 typedef char vl_assert_frame_capacity[(VL_MAX_FRAME_FEATURES >= 1) ? 1 : -1];
 typedef char vl_assert_pending_capacity[(VL_MAX_PENDING >= VL_MAX_FRAME_FEATURES) ? 1 : -1];
 
-static double *P_at(vl_estimator_t *e, uint32_t row, uint32_t col)
-{
-    return &e->P[(size_t)col * LD + row];
-}
-
-static uint32_t landmark_col(uint32_t slot)
-{
-    return VL_CORE_DIM + 3u * slot;
-}
-
-static void log_msg(const vl_estimator_t *e, vl_log_level_t level, int64_t utime, const char *msg)
-{
-    if (e->cfg.log != NULL) {
-        e->cfg.log(e->cfg.log_user, level, utime, msg);
-    }
-}
-
-static int all_finite(const double *v, int n)
-{
-    for (int i = 0; i < n; ++i) {
-        if (!isfinite(v[i])) {
-            return 0;
-        }
-    }
-    return 1;
-}
-
-/*
- * a - b in microseconds, saturated to the int64 range: input times come from
- * outside, and INT64_MIN or INT64_MAX must not overflow the subtraction.
- */
-static int64_t utime_diff(int64_t a, int64_t b)
-{
-    if (b < 0 && a > INT64_MAX + b) {
-        return INT64_MAX;
-    }
-    if (b > 0 && a < INT64_MIN + b) {
-        return INT64_MIN;
-    }
-    return a - b;
-}
-
-/* A configured time limit in microseconds (vl_config_check bounds it by VL_MAX_TIME_LIMIT s). */
-static int64_t limit_us(double seconds)
-{
-    return (int64_t)(seconds * 1e6);
-}
-
-/* ---------------------------------------------------------------- geometry */
-
-/* cam_T_imu as rotation and translation. */
-static void camera_extrinsics(const vl_calibration_t *cal, double Rc[9], double tc[3])
-{
-    for (int i = 0; i < 3; ++i) {
-        for (int j = 0; j < 3; ++j) {
-            Rc[3 * i + j] = cal->cam_T_imu[4 * i + j];
-        }
-        tc[i] = cal->cam_T_imu[4 * i + 3];
-    }
-}
-
-/* World point of a window landmark, m. */
-static const double *landmark_point(const vl_estimator_t *e, uint32_t slot)
-{
-    return &e->landmark_state[3 * slot];
-}
-
-/*
- * A world point in the IMU frame (b = R^T (p_w - p)) and the left camera frame
- * (c = Rc b + tc). Returns 0 when it is in front of the camera.
- */
-static int camera_point(const vl_estimator_t *e, const double Rc[9], const double tc[3], const double pw[3],
-                        double b[3], double c[3])
-{
-    const double d[3] = {pw[0] - e->p[0], pw[1] - e->p[1], pw[2] - e->p[2]};
-    vl_matmul_at(e->R, d, b, 3, 3, 1);
-    vl_matmul(Rc, b, c, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        c[i] += tc[i];
-    }
-    return (c[2] > 1e-3) ? 0 : -1;
-}
-
-/*
- * Predicted compressed observation of a world point, d y / d xi (pose, 3x6) and
- * d y / d p_w (3x3). Returns 0 when the point is in front of the camera.
- */
-static int project_world_point(const vl_estimator_t *e, const double pw[3], double y[3], double H_pose[18],
-                               double dy_dpw[9])
-{
-    const vl_calibration_t *cal = &e->cfg.calibration;
-    double Rc[9], tc[3], b[3], c[3];
-    camera_extrinsics(cal, Rc, tc);
-    if (camera_point(e, Rc, tc, pw, b, c) != 0) {
-        return -1;
-    }
-    double dy_dc[9];
-    vl_stereo_project(cal, c, y, dy_dc);
-
-    /* d b / d xi = -odot(b) (right perturbation of the world-from-IMU pose) */
-    double odot[18], dy_db[9];
-    vl_circle_dot(b, odot);
-    vl_matmul(dy_dc, Rc, dy_db, 3, 3, 3);
-    vl_matmul(dy_db, odot, H_pose, 3, 3, 6);
-    for (int i = 0; i < 18; ++i) {
-        H_pose[i] = -H_pose[i];
-    }
-    /* d b / d p_w = R^T */
-    vl_matmul_bt(dy_db, e->R, dy_dpw, 3, 3, 3);
-    return 0;
-}
-
-/* Squared Mahalanobis length r^T S^-1 r of a 3-vector; a non-SPD S gives infinity. */
-static double mahalanobis3(const double S[9], const double r[3])
-{
-    const double d00 = S[0];
-    if (!(d00 > 0.0)) {
-        return INFINITY;
-    }
-    const double l00 = sqrt(d00);
-    const double l10 = S[3] / l00, l20 = S[6] / l00;
-    const double d11 = S[4] - l10 * l10;
-    if (!(d11 > 0.0)) {
-        return INFINITY;
-    }
-    const double l11 = sqrt(d11);
-    const double l21 = (S[7] - l20 * l10) / l11;
-    const double d22 = S[8] - l20 * l20 - l21 * l21;
-    if (!(d22 > 0.0)) {
-        return INFINITY;
-    }
-    const double l22 = sqrt(d22);
-    const double w0 = r[0] / l00;
-    const double w1 = (r[1] - l10 * w0) / l11;
-    const double w2 = (r[2] - l20 * w0 - l21 * w1) / l22;
-    return w0 * w0 + w1 * w1 + w2 * w2;
-}
-
-/* World point and its pixel-noise covariance from one compressed observation at the current pose. */
-static void triangulate_world(const vl_estimator_t *e, const double y[3], double pw[3], double C[9])
-{
-    const vl_calibration_t *cal = &e->cfg.calibration;
-    double Rc[9], tc[3], c[3], dc_dy[9], d[3], b[3], J[9], RRc[9], tmp[9];
-    camera_extrinsics(cal, Rc, tc);
-    vl_stereo_triangulate(cal, y, c, dc_dy);
-    for (int i = 0; i < 3; ++i) {
-        d[i] = c[i] - tc[i];
-    }
-    vl_matmul_at(Rc, d, b, 3, 3, 1);
-    vl_matmul(e->R, b, pw, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        pw[i] += e->p[i];
-    }
-    vl_matmul_bt(e->R, Rc, RRc, 3, 3, 3);
-    vl_matmul(RRc, dc_dy, J, 3, 3, 3);
-    const double s2 = e->pixel_var;
-    const double noise[9] = {s2, 0, 0, 0, 0.5 * s2, 0, 0, 0, s2};
-    vl_matmul(J, noise, tmp, 3, 3, 3);
-    vl_matmul_bt(tmp, J, C, 3, 3, 3);
-}
-
-/* ---------------------------------------------------------------- prediction */
-
-static void propagate_to(vl_estimator_t *e, int64_t utime)
-{
-    const double tau = (double)utime_diff(utime, e->state_utime) * 1e-6;
-    if (tau <= 0.0) {
-        return;
-    }
-    if (tau > e->cfg.max_propagation_dt) {
-        e->counters.time_gaps++;
-        log_msg(e, VL_LOG_WARN, utime, "long gap between inputs; propagating across it");
-    }
-
-    double xi[6], dR[9], dp[3];
-    for (int i = 0; i < 3; ++i) {
-        xi[i] = tau * (e->held_linear[i] - e->offset_linear[i]);
-        xi[3 + i] = tau * (e->held_angular[i] - e->offset_angular[i]);
-    }
-    vl_se3_exp(xi, dR, dp);
-
-    /* T <- T exp(tau u) */
-    double Rn[9], t[3];
-    vl_matmul(e->R, dR, Rn, 3, 3, 3);
-    vl_matmul(e->R, dp, t, 3, 3, 1);
-    memcpy(e->R, Rn, sizeof(Rn));
-    vl_so3_normalize(e->R);
-    for (int i = 0; i < 3; ++i) {
-        e->p[i] += t[i];
-    }
-    e->state_utime = utime;
-
-    /*
-     * Input noise n and offset error db both act as u -> u - n - db, which moves
-     * the pose error by G (n + db) with G = -tau Ad(T_new) J_r(tau u), and each
-     * landmark error by hat(l_i) times its rotation rows (the world turns under
-     * the landmarks, which stay put).
-     */
-    double Ad[36], Jr[36], Gp[36];
-    vl_se3_adjoint(e->R, e->p, Ad);
-    vl_se3_right_jacobian(xi, Jr);
-    vl_matmul(Ad, Jr, Gp, 6, 6, 6);
-    for (int i = 0; i < 36; ++i) {
-        Gp[i] *= -tau;
-    }
-    const uint32_t n = vl_state_dim(e);
-    double *G = e->work_PHt; /* n x 6, column-major; the update workspace is free here */
-    for (int j = 0; j < 6; ++j) {
-        double *col = &G[(size_t)j * n];
-        for (int i = 0; i < 6; ++i) {
-            col[i] = Gp[6 * i + j];
-            col[6 + i] = 0.0;
-        }
-        const double psi[3] = {Gp[6 * 3 + j], Gp[6 * 4 + j], Gp[6 * 5 + j]};
-        for (uint32_t s = 0; s < e->num_landmarks; ++s) {
-            double *g = &col[landmark_col(s)];
-            if (e->cfg.mode == VL_MODE_MAPPING) {
-                g[0] = g[1] = g[2] = 0.0; /* the trajectory is taken as known */
-                continue;
-            }
-            const double *l = landmark_point(e, s);
-            g[0] = l[1] * psi[2] - l[2] * psi[1];
-            g[1] = l[2] * psi[0] - l[0] * psi[2];
-            g[2] = l[0] * psi[1] - l[1] * psi[0];
-        }
-    }
-    const double sv2 = e->linear_velocity_var;
-    const double sw2 = e->angular_velocity_var;
-    const double noise_var[6] = {sv2, sv2, sv2, sw2, sw2, sw2};
-    const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
-    const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
-    const double offset_var[6] = {qv, qv, qv, qw, qw, qw};
-    vl_la_propagate(e->P, LD, (int)n, G, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL,
-                    e->work_PHt + (size_t)6 * n);
-}
-
-/* ---------------------------------------------------------------- window */
-
-static int find_slot(const vl_estimator_t *e, int32_t id)
-{
-    for (uint32_t s = 0; s < e->num_landmarks; ++s) {
-        if (e->slots[s].id == id) {
-            return (int)s;
-        }
-    }
-    return -1;
-}
-
-/* World position and covariance: delta l = rho_i - hat(l) phi (or rho_i alone when mapping). */
-static void landmark_output(const vl_estimator_t *e, uint32_t slot, vl_landmark_t *out)
-{
-    const vl_landmark_slot_t *s = &e->slots[slot];
-    const double *l = landmark_point(e, slot);
-    memcpy(out->position, l, 3 * sizeof(double));
-    const uint32_t c = landmark_col(slot);
-    const uint32_t idx[6] = {3, 4, 5, c, c + 1, c + 2};
-    double B[36];
-    for (int i = 0; i < 6; ++i) {
-        for (int j = 0; j < 6; ++j) {
-            B[6 * i + j] = e->P[(size_t)idx[j] * LD + idx[i]];
-        }
-    }
-    double J[18] = {0};
-    if (e->cfg.mode != VL_MODE_MAPPING) {
-        double S[9];
-        vl_skew(l, S);
-        for (int i = 0; i < 3; ++i) {
-            for (int j = 0; j < 3; ++j) {
-                J[6 * i + j] = -S[3 * i + j];
-            }
-        }
-    }
-    J[3] = J[6 + 4] = J[12 + 5] = 1.0;
-    double JB[18];
-    vl_matmul(J, B, JB, 3, 6, 6);
-    vl_matmul_bt(JB, J, out->covariance, 3, 6, 3);
-    out->id = s->id;
-    out->observations = s->observations;
-    out->first_utime = s->first_utime;
-    out->last_utime = s->last_utime;
-}
-
-/* Hands the landmark to the map and drops its rows and columns (exact marginal). */
-static void marginalize_slot(vl_estimator_t *e, uint32_t slot)
-{
-    if (e->cfg.landmark_sink != NULL) {
-        vl_landmark_t lm;
-        landmark_output(e, slot, &lm);
-        e->cfg.landmark_sink(e->cfg.landmark_sink_user, &lm);
-    }
-    const uint32_t last = e->num_landmarks - 1u;
-    if (slot != last) {
-        vl_la_move_block(e->P, LD, (int)vl_state_dim(e), (int)landmark_col(slot), (int)landmark_col(last));
-        e->slots[slot] = e->slots[last];
-        memcpy(&e->landmark_state[3 * slot], &e->landmark_state[3 * last], 3 * sizeof(double));
-        e->work_seen[slot] = e->work_seen[last];
-    }
-    e->num_landmarks--;
-    e->counters.landmarks_marginalized++;
-}
-
-/* ---------------------------------------------------------------- initialization */
-
-/*
- * Admits a landmark from one stereo observation y (compressed): l = R b + p with
- * b the triangulated point in the IMU frame. In invariant coordinates its error is
- * rho (the pose's) plus the pixel part, so it gets the exact first-order
- * cross-covariance to every state through the pose translation error.
- */
-static void admit_landmark(vl_estimator_t *e, int32_t id, const double y[3])
-{
-    const vl_calibration_t *cal = &e->cfg.calibration;
-    double Rc[9], tc[3], c[3], dc_dy[9], b[3], d[3], Rb[3], RRc[9];
-    camera_extrinsics(cal, Rc, tc);
-    vl_stereo_triangulate(cal, y, c, dc_dy);
-    for (int i = 0; i < 3; ++i) {
-        d[i] = c[i] - tc[i];
-    }
-    vl_matmul_at(Rc, d, b, 3, 3, 1); /* b = Rc^T (c - tc), the point in the IMU frame */
-
-    const uint32_t slot = e->num_landmarks;
-    vl_landmark_slot_t *s = &e->slots[slot];
-    double *l = &e->landmark_state[3 * slot];
-    vl_matmul(e->R, b, Rb, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        l[i] = Rb[i] + e->p[i];
-    }
-    double J_pose[18] = {0}, J_obs[9];
-    if (e->cfg.mode != VL_MODE_MAPPING) {
-        J_pose[0] = J_pose[7] = J_pose[14] = 1.0;
-    }
-    vl_matmul_bt(e->R, Rc, RRc, 3, 3, 3); /* R Rc^T */
-    vl_matmul(RRc, dc_dy, J_obs, 3, 3, 3);
-    const double s2 = e->pixel_var;
-    const double noise[3] = {s2, 0.5 * s2, s2};
-    vl_la_append_landmark(e->P, LD, (int)vl_state_dim(e), J_pose, J_obs, noise);
-
-    s->id = id;
-    s->observations = 1;
-    s->unseen_frames = 0;
-    s->first_utime = e->state_utime;
-    s->last_utime = e->state_utime;
-    e->work_seen[slot] = 1;
-    e->num_landmarks++;
-    e->counters.landmarks_initialized++;
-    if (e->num_landmarks > e->counters.window_peak) {
-        e->counters.window_peak = e->num_landmarks;
-    }
-}
-
-/* ---------------------------------------------------------------- pending tracks */
-
-static vl_pending_track_t *pending_touch(vl_estimator_t *e, int32_t id, int *duplicate)
-{
-    *duplicate = 0;
-    for (uint32_t i = 0; i < e->num_pending; ++i) {
-        vl_pending_track_t *t = &e->pending[i];
-        if (t->id == id) {
-            if (t->last_frame == e->frame_index) {
-                *duplicate = 1;
-                return t;
-            }
-            t->frames_seen++;
-            t->last_frame = e->frame_index;
-            return t;
-        }
-    }
-    if (e->num_pending >= VL_MAX_PENDING) {
-        return NULL;
-    }
-    vl_pending_track_t *t = &e->pending[e->num_pending++];
-    t->id = id;
-    t->frames_seen = 1;
-    t->last_frame = e->frame_index;
-    return t;
-}
-
-/* Keeps only candidates seen in this frame: tracks have no gaps, an unseen one has ended. */
-static void pending_compact(vl_estimator_t *e)
-{
-    uint32_t out = 0;
-    for (uint32_t i = 0; i < e->num_pending; ++i) {
-        if (e->pending[i].last_frame == e->frame_index && e->pending[i].id >= 0) {
-            e->pending[out++] = e->pending[i];
-        }
-    }
-    e->num_pending = out;
-}
-
-/* ---------------------------------------------------------------- update */
-
-/*
- * Update rows of one window landmark's observation; -1 when it is behind the camera.
- * With b = R^T (l - p), to first order b = b_hat + R^T (rho_i - rho): the rows are
- * A = dy/dc Rc R^T on rho_i and -A on rho, and zero on phi.
- */
-static int make_row(const vl_estimator_t *e, uint32_t slot, const vl_stereo_obs_t *o, vl_la_obs_t *row)
-{
-    const vl_calibration_t *cal = &e->cfg.calibration;
-    double Rc[9], tc[3], b[3], c[3], dy_dc[9], y_pred[3], y[3], RcRt[9];
-    camera_extrinsics(cal, Rc, tc);
-    if (camera_point(e, Rc, tc, landmark_point(e, slot), b, c) != 0) {
-        return -1;
-    }
-    vl_stereo_project(cal, c, y_pred, dy_dc);
-    vl_matmul_bt(Rc, e->R, RcRt, 3, 3, 3);
-    vl_matmul(dy_dc, RcRt, row->H_landmark, 3, 3, 3);
-    memset(row->H_pose, 0, sizeof(row->H_pose));
-    if (e->cfg.mode != VL_MODE_MAPPING) {
-        for (int i = 0; i < 3; ++i) {
-            for (int j = 0; j < 3; ++j) {
-                row->H_pose[6 * i + j] = -row->H_landmark[3 * i + j];
-            }
-        }
-    }
-    vl_stereo_compress(o, y);
-    const double s2 = e->pixel_var;
-    for (int r = 0; r < 3; ++r) {
-        row->residual[r] = y[r] - y_pred[r];
-    }
-    row->noise_var[0] = s2;
-    row->noise_var[1] = 0.5 * s2;
-    row->noise_var[2] = s2;
-    row->landmark_col = (int)landmark_col(slot);
-    return 0;
-}
-
-/* Squared pixel length of a row's residual after a correction dx. */
-static double residual_after(const vl_la_obs_t *row, const double *dx)
-{
-    double acc = 0.0;
-    const double *dl = &dx[row->landmark_col];
-    for (int r = 0; r < 3; ++r) {
-        double v = row->residual[r];
-        for (int j = 0; j < 6; ++j) {
-            v -= row->H_pose[6 * r + j] * dx[j];
-        }
-        for (int j = 0; j < 3; ++j) {
-            v -= row->H_landmark[3 * r + j] * dl[j];
-        }
-        acc += v * v;
-    }
-    return acc;
-}
-
-static void swap_rows(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t a, uint32_t b)
-{
-    if (a == b) {
-        return;
-    }
-    vl_la_obs_t t = rows[a];
-    rows[a] = rows[b];
-    rows[b] = t;
-    uint32_t s = e->work_slot[a];
-    e->work_slot[a] = e->work_slot[b];
-    e->work_slot[b] = s;
-    uint32_t f = e->work_frame_obs[a];
-    e->work_frame_obs[a] = e->work_frame_obs[b];
-    e->work_frame_obs[b] = f;
-}
-
-/* splitmix64: hypotheses drawn from the frame index, so a replay draws the same ones. */
-static uint64_t next_random(uint64_t *state)
-{
-    uint64_t z = (*state += 0x9E3779B97F4A7C15ull);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-}
-
-/* Rows whose prior innovation passes gate_chi2, flagged in work_inlier; returns how many fail. */
-static uint32_t gate_rows(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
-{
-    uint32_t failed = 0;
-    for (uint32_t i = 0; i < k; ++i) {
-        double S[9];
-        vl_la_obs_covariance(e->P, LD, &rows[i], S);
-        e->work_inlier[i] = mahalanobis3(S, rows[i].residual) <= e->cfg.gate_chi2;
-        failed += !e->work_inlier[i];
-    }
-    return failed;
-}
-
-/*
- * 1-point RANSAC: each hypothesis is the state one observation alone would give;
- * the observations it explains to within ransac_threshold pixels are its
- * support. Replaces the work_inlier flags with the best hypothesis' support.
- */
-static void ransac_rows(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
-{
-    uint8_t *inlier = e->work_inlier;
-    const int n = (int)vl_state_dim(e);
-    const double thr2 = e->cfg.ransac_threshold * e->cfg.ransac_threshold;
-    const uint32_t hypotheses = e->cfg.ransac_hypotheses < k ? e->cfg.ransac_hypotheses : k;
-    uint32_t best_support = 0;
-    uint64_t rng = e->frame_index;
-    for (uint32_t h = 0; h < hypotheses; ++h) {
-        const uint32_t pick = (uint32_t)(next_random(&rng) % k);
-        if (vl_la_single_correction(e->P, LD, n, &rows[pick], e->work_PHt, e->work_dx) != 0) {
-            continue;
-        }
-        uint8_t *flags = e->work_support;
-        uint32_t support = 0;
-        for (uint32_t i = 0; i < k; ++i) {
-            flags[i] = residual_after(&rows[i], e->work_dx) <= thr2;
-            support += flags[i];
-        }
-        if (support > best_support) {
-            best_support = support;
-            memcpy(inlier, flags, k);
-        }
-    }
-}
-
-/* Moves the rows flagged in work_inlier to the front; returns how many there are. */
-static uint32_t partition_rows(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t k)
-{
-    uint8_t *inlier = e->work_inlier;
-    uint32_t m = 0;
-    for (uint32_t i = 0; i < k; ++i) {
-        if (inlier[i]) {
-            swap_rows(e, rows, m, i);
-            uint8_t t = inlier[m];
-            inlier[m] = inlier[i];
-            inlier[i] = t;
-            m++;
-        }
-    }
-    return m;
-}
-
-/* Joint update with the first m rows, and the state correction it gives. */
-static vl_status_t apply_update(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t m)
-{
-    if (m == 0) {
-        return VL_OK;
-    }
-    vl_la_workspace_t ws = {e->work_PHt, e->work_S, e->work_dx};
-    const uint32_t n = vl_state_dim(e);
-    if (vl_la_update(e->P, LD, (int)n, rows, (int)m, &ws) != 0 || !all_finite(e->work_dx, (int)n)) {
-        e->counters.numerical_failures++;
-        return VL_ERR_NOT_POSITIVE_DEFINITE;
-    }
-    /* X <- exp(dx) X on SE_{K+1}(3): every position turns with the rotation
-     * correction and moves by J_l(phi) times its own translation correction. */
-    const double *dx = e->work_dx;
-    double dR[9], dp[3], Jl[9], Rn[9], v[3], w[3];
-    vl_se3_exp(dx, dR, dp);
-    vl_so3_left_jacobian(&dx[3], Jl);
-    vl_matmul(dR, e->R, Rn, 3, 3, 3);
-    memcpy(e->R, Rn, sizeof(Rn));
-    vl_so3_normalize(e->R);
-    vl_matmul(dR, e->p, v, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        e->p[i] = v[i] + dp[i];
-        e->offset_linear[i] += dx[IDX_OFFSET_LIN + i];
-        e->offset_angular[i] += dx[IDX_OFFSET_ANG + i];
-    }
-    for (uint32_t s = 0; s < e->num_landmarks; ++s) {
-        double *l = &e->landmark_state[3 * s];
-        vl_matmul(dR, l, v, 3, 3, 1);
-        vl_matmul(Jl, &dx[landmark_col(s)], w, 3, 3, 1);
-        for (int i = 0; i < 3; ++i) {
-            l[i] = v[i] + w[i];
-        }
-    }
-    e->counters.observations_used += m;
-    return VL_OK;
-}
-
-/* ---------------------------------------------------------------- noise adaptation */
-
-/* Keeps a variance within the adaptation's bounds around its configured value. */
-static double clamp_var(double var, double configured_std)
-{
-    const double f = VL_NOISE_ADAPT_RANGE;
-    const double lo = configured_std * configured_std / (f * f), hi = configured_std * configured_std * f * f;
-    return var < lo ? lo : (var > hi ? hi : var);
-}
-
-/* The k-th smallest of v[0..n) (0-based); reorders v. Quickselect with a middle pivot: deterministic. */
-static double select_kth(double *v, uint32_t n, uint32_t k)
-{
-    uint32_t lo = 0, hi = n - 1u;
-    while (lo < hi) {
-        const double pivot = v[lo + (hi - lo) / 2u];
-        uint32_t i = lo, j = hi;
-        while (i <= j) {
-            while (v[i] < pivot) {
-                ++i;
-            }
-            while (v[j] > pivot) {
-                --j;
-            }
-            if (i <= j) {
-                const double t = v[i];
-                v[i] = v[j];
-                v[j] = t;
-                ++i;
-                if (j == 0u) {
-                    break;
-                }
-                --j;
-            }
-        }
-        if (k <= j) {
-            hi = j;
-        } else if (k >= i) {
-            lo = i;
-        } else {
-            return v[k];
-        }
-    }
-    return v[k];
-}
-
-/*
- * Residual-based covariance matching for the pixel noise, made robust. After the
- * update, an observation's post-fit residual e has E[e e^T] = R - H P+ H^T, so
- * each row gives (e_r^2 + (H P+ H^T)_rr) / w_r as a sample of the pixel variance
- * (w_r the row's share: 1, 1/2, 1). The median over every row of the frame,
- * outliers included, scaled to a variance (the median of chi-square(1) is 0.455),
- * is blind to a minority of outliers and is not truncated by the inlier
- * selection. It enters an average that forgets faster the more rows a frame has.
- */
-static void adapt_pixel_noise(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
-{
-    static const double share[3] = {1.0, 0.5, 1.0};
-    double samples[VL_OBS_DIM * VL_MAX_LANDMARKS];
-    uint32_t n = 0;
-    for (uint32_t i = 0; i < k; ++i) {
-        double S[9];
-        vl_la_obs_covariance(e->P, LD, &rows[i], S); /* H P+ H^T + R */
-        for (int r = 0; r < 3; ++r) {
-            double res = rows[i].residual[r];
-            for (int j = 0; j < 6; ++j) {
-                res -= rows[i].H_pose[6 * r + j] * e->work_dx[j];
-            }
-            for (int j = 0; j < 3; ++j) {
-                res -= rows[i].H_landmark[3 * r + j] * e->work_dx[rows[i].landmark_col + j];
-            }
-            samples[n++] = (res * res + S[4 * r] - rows[i].noise_var[r]) / share[r];
-        }
-    }
-    if (n < 3u) {
-        return;
-    }
-    const double sample = select_kth(samples, n, n / 2u) / 0.455;
-    const double w = 1.0 - exp(-(double)k / VL_PIXEL_NOISE_MEMORY);
-    e->pixel_var = clamp_var((1.0 - w) * e->pixel_var + w * sample, e->cfg.pixel_noise);
-}
-
-/*
- * Covariance matching for the velocity noise on the pose correction: for a
- * consistent filter E[dx dx^T] = P- - P+ on the pose block. More correction than
- * the filter expected means its prediction was too confident (noise too small),
- * less means too timid. Each variance moves by a fraction of log(ratio), weighted
- * by how much the frame informed that block, so weak frames barely move it.
- */
-static void adapt_velocity_noise(vl_estimator_t *e, const double prior_diag[6])
-{
-    const double *dx = e->work_dx;
-    double *var[2] = {&e->linear_velocity_var, &e->angular_velocity_var};
-    const double configured[2] = {e->cfg.linear_velocity_noise, e->cfg.angular_velocity_noise};
-    for (int b = 0; b < 2; ++b) {
-        double expected = 0.0, seen = 0.0, prior = 0.0;
-        for (int i = 3 * b; i < 3 * b + 3; ++i) {
-            prior += prior_diag[i];
-            expected += prior_diag[i] - *P_at(e, (uint32_t)i, (uint32_t)i);
-            seen += dx[i] * dx[i];
-        }
-        if (!(expected > 1e-12 * prior) || !(prior > 0.0)) {
-            continue;
-        }
-        double ratio = seen / expected;
-        ratio = ratio < 0.1 ? 0.1 : (ratio > 10.0 ? 10.0 : ratio);
-        const double gain = VL_VELOCITY_NOISE_GAIN * (expected / prior);
-        *var[b] = clamp_var(*var[b] * exp(gain * log(ratio)), configured[b]);
-    }
-}
-
-/*
- * Re-linearizes the rejected rows (rows[first .. first + count)) at the corrected
- * state, keeps those within gate_chi2 of their posterior innovation covariance,
- * and moves them to the front of rows. Returns how many were kept.
- *
- * The others are broken tracks: the seed data's tracker, when it detects new
- * features, hands some existing ids to different points (their pixels jump tens
- * of pixels away from the point's history but agree with its future). Such a
- * landmark leaves the window for the map and its id starts a new landmark from
- * this observation; its slot is marked 2 in work_seen and the observation is
- * listed in work_broken.
- */
-static uint32_t rescue_outliers(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_la_obs_t *rows,
-                                uint32_t first, uint32_t count)
-{
-    uint32_t m = 0;
-    for (uint32_t i = first; i < first + count; ++i) {
-        const uint32_t slot = e->work_slot[i];
-        vl_la_obs_t row;
-        if (make_row(e, slot, &frame->obs[e->work_frame_obs[i]], &row) != 0) {
-            continue;
-        }
-        double S[9];
-        vl_la_obs_covariance(e->P, LD, &row, S);
-        if (mahalanobis3(S, row.residual) <= e->cfg.gate_chi2) {
-            rows[m] = row;
-            e->work_slot[m] = slot;
-            m++;
-        } else {
-            e->work_seen[slot] = 2;
-            e->work_broken[e->num_broken++] = e->work_frame_obs[i];
-        }
-    }
-    return m;
-}
-
-/* ---------------------------------------------------------------- public API */
+/* ---------------------------------------------------------------- life cycle */
 
 /* The state vl_init gives: identity pose, empty window, configured noise; counters zero. */
 static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
@@ -772,12 +52,14 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
     memcpy(e->R, I3, sizeof(I3));
     /* Only the leading 12 x 12 block is live at start; the rest is written as landmarks arrive. */
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
-        memset(&e->P[(size_t)j * LD], 0, VL_CORE_DIM * sizeof(double));
+        memset(&e->P[(size_t)j * VL_LD], 0, VL_CORE_DIM * sizeof(double));
     }
     if (cfg->estimate_input_offsets) {
         for (int i = 0; i < 3; ++i) {
-            *P_at(e, IDX_OFFSET_LIN + i, IDX_OFFSET_LIN + i) = cfg->linear_offset_prior * cfg->linear_offset_prior;
-            *P_at(e, IDX_OFFSET_ANG + i, IDX_OFFSET_ANG + i) = cfg->angular_offset_prior * cfg->angular_offset_prior;
+            *vl_P_at(e, VL_IDX_OFFSET_LIN + i, VL_IDX_OFFSET_LIN + i) =
+                cfg->linear_offset_prior * cfg->linear_offset_prior;
+            *vl_P_at(e, VL_IDX_OFFSET_ANG + i, VL_IDX_OFFSET_ANG + i) =
+                cfg->angular_offset_prior * cfg->angular_offset_prior;
         }
     }
     e->linear_velocity_var = cfg->linear_velocity_noise * cfg->linear_velocity_noise;
@@ -851,131 +133,19 @@ vl_status_t vl_reset(vl_estimator_t *e)
     return VL_OK;
 }
 
-typedef enum { INPUT_IMU, INPUT_FRAME } input_kind_t;
-
-/*
- * The time policy (the first IMU sample sets the clock without it): an input
- * farther than max_time_jump from the clock, either way, is a jump; otherwise
- * each kind must move forward as before.
- */
-static vl_status_t check_time(const vl_estimator_t *e, input_kind_t kind, int64_t utime)
-{
-    const int64_t limit = limit_us(e->cfg.max_time_jump);
-    const int64_t d = utime_diff(utime, e->clock_utime);
-    if (d > limit || d < -limit) {
-        return VL_ERR_TIME_JUMP;
-    }
-    if (kind == INPUT_IMU) {
-        return (utime <= e->last_imu_utime || utime < e->state_utime) ? VL_ERR_TIME_ORDER : VL_OK;
-    }
-    return (utime < e->state_utime || (e->have_frame && utime <= e->last_frame_utime)) ? VL_ERR_TIME_ORDER : VL_OK;
-}
-
-/* An input passed the time policy: the clock follows it and no new timeline is pending. */
-static void time_passed(vl_estimator_t *e, int64_t utime)
-{
-    if (utime > e->clock_utime) {
-        e->clock_utime = utime;
-    }
-    e->timeline_count = 0;
-}
-
-/*
- * A time-refused input. Consecutive ones that follow one another (each within
- * max_time_jump of the previous, each kind strictly forward, so a stuck clock
- * never qualifies) are a candidate timeline; any input that passes the policy
- * ends it. Returns nonzero when the candidate has new_timeline_samples inputs.
- */
-static int note_timeline(vl_estimator_t *e, input_kind_t kind, int64_t utime)
-{
-    int follows = e->timeline_count > 0;
-    if (follows) {
-        const int64_t limit = limit_us(e->cfg.max_time_jump);
-        const int64_t d = utime_diff(utime, e->timeline_last_utime);
-        follows = d <= limit && d >= -limit;
-        if (kind == INPUT_IMU && e->timeline_have_imu && utime <= e->timeline_last_imu_utime) {
-            follows = 0;
-        }
-        if (kind == INPUT_FRAME && e->timeline_have_frame && utime <= e->timeline_last_frame_utime) {
-            follows = 0;
-        }
-    }
-    if (!follows) {
-        e->timeline_count = 0;
-        e->timeline_have_imu = 0;
-        e->timeline_have_frame = 0;
-    }
-    e->timeline_count++;
-    e->timeline_last_utime = utime;
-    if (kind == INPUT_IMU) {
-        e->timeline_have_imu = 1;
-        e->timeline_last_imu_utime = utime;
-    } else {
-        e->timeline_have_frame = 1;
-        e->timeline_last_frame_utime = utime;
-    }
-    return e->timeline_count >= e->cfg.new_timeline_samples;
-}
-
-/*
- * The divergence guard: a non-finite state, a covariance with a negative or
- * non-finite diagonal or a core block violating |P_ij| <= sqrt(P_ii P_jj) (a
- * necessary condition of positive semi-definiteness, cheap enough for every
- * step), or, in SLAM, divergence_frames failed updates in a row.
- */
-static int diverged(const vl_estimator_t *e)
-{
-    if (!all_finite(e->R, 9) || !all_finite(e->p, 3) || !all_finite(e->offset_linear, 3) ||
-        !all_finite(e->offset_angular, 3) || !all_finite(e->landmark_state, 3 * (int)e->num_landmarks)) {
-        return 1;
-    }
-    const uint32_t n = vl_state_dim(e);
-    for (uint32_t i = 0; i < n; ++i) {
-        const double d = e->P[(size_t)i * LD + i];
-        if (!(d >= 0.0) || !isfinite(d)) {
-            return 1;
-        }
-    }
-    for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
-        for (uint32_t i = 0; i < j; ++i) {
-            const double pij = e->P[(size_t)j * LD + i];
-            const double bound = e->P[(size_t)i * LD + i] * e->P[(size_t)j * LD + j];
-            if (!isfinite(pij) || pij * pij > bound * (1.0 + 1e-6)) {
-                return 1;
-            }
-        }
-    }
-    return e->cfg.mode == VL_MODE_SLAM && e->cfg.divergence_frames > 0 &&
-           e->failed_frame_run >= e->cfg.divergence_frames;
-}
-
 /* After an input was used: a diverged estimator restarts (VL_RESET), else result stands. */
 static vl_status_t guard_divergence(vl_estimator_t *e, int64_t utime, vl_status_t result)
 {
-    if (!diverged(e)) {
+    if (!vl_guard_diverged(e)) {
         return result;
     }
     reset_state(e, 1);
     e->counters.divergence_resets++;
-    log_msg(e, VL_LOG_ERROR, utime, "estimator diverged; re-initialized with the same configuration");
+    vl_log_msg(e, VL_LOG_ERROR, utime, "estimator diverged; re-initialized with the same configuration");
     return VL_RESET;
 }
 
-/* Euclidean length of a finite 3-vector, scaled so that squaring cannot overflow. */
-static double norm3(const double v[3])
-{
-    const double m = fmax(fabs(v[0]), fmax(fabs(v[1]), fabs(v[2])));
-    if (m == 0.0) {
-        return 0.0;
-    }
-    const double a = v[0] / m, b = v[1] / m, c = v[2] / m;
-    return m * sqrt(a * a + b * b + c * c);
-}
-
-static int imu_plausible(const vl_estimator_t *e, const vl_imu_sample_t *imu)
-{
-    return norm3(imu->linear_velocity) <= e->cfg.max_speed && norm3(imu->angular_velocity) <= e->cfg.max_rotation_rate;
-}
+/* ---------------------------------------------------------------- prediction */
 
 vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
 {
@@ -985,53 +155,53 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
     if (!e->initialized) {
         return VL_ERR_NOT_READY;
     }
-    if (!all_finite(imu->linear_velocity, 3) || !all_finite(imu->angular_velocity, 3)) {
+    if (!vl_all_finite(imu->linear_velocity, 3) || !vl_all_finite(imu->angular_velocity, 3)) {
         e->counters.imu_rejected++;
-        log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample with NaN or infinity rejected");
+        vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample with NaN or infinity rejected");
         return VL_ERR_NON_FINITE;
     }
-    if (!imu_plausible(e, imu)) {
+    if (!vl_guard_imu_plausible(e, imu)) {
         e->counters.imu_rejected++;
         e->counters.imu_implausible++;
-        log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample beyond max_speed or max_rotation_rate rejected");
+        vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample beyond max_speed or max_rotation_rate rejected");
         return VL_ERR_IMPLAUSIBLE;
     }
     vl_status_t result = VL_OK;
     if (e->have_imu) {
-        const vl_status_t st = check_time(e, INPUT_IMU, imu->utime);
+        const vl_status_t st = vl_guard_check_time(e, VL_INPUT_IMU, imu->utime);
         if (st != VL_OK) {
-            if (!note_timeline(e, INPUT_IMU, imu->utime)) {
+            if (!vl_guard_note_timeline(e, VL_INPUT_IMU, imu->utime)) {
                 e->counters.imu_rejected++;
                 if (st == VL_ERR_TIME_JUMP) {
                     e->counters.time_jumps++;
-                    log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample jumping in time rejected");
+                    vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample jumping in time rejected");
                 } else {
-                    log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample out of time order rejected");
+                    vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample out of time order rejected");
                 }
                 return st;
             }
             /* The inputs follow a new timeline: restart on it with this sample. */
             reset_state(e, 0);
             e->counters.timeline_changes++;
-            log_msg(e, VL_LOG_WARN, imu->utime, "inputs follow a new timeline; re-initialized on it");
+            vl_log_msg(e, VL_LOG_WARN, imu->utime, "inputs follow a new timeline; re-initialized on it");
             result = VL_RESET;
         }
     }
     if (e->have_imu) {
-        const int64_t silence = limit_us(e->cfg.max_imu_silence);
-        if (utime_diff(imu->utime, e->last_imu_utime) > silence) {
+        if (vl_guard_imu_silent_at(e, imu->utime)) {
             /* The held velocity is trusted for max_imu_silence; the motion after that
              * is unknown, so the clock jumps over it rather than invent it. */
             if (!e->imu_silent) {
                 e->counters.imu_silences++;
             }
-            log_msg(e, VL_LOG_WARN, imu->utime, "IMU back after a silence; the motion during it is not propagated");
-            propagate_to(e, e->last_imu_utime + silence);
+            vl_log_msg(e, VL_LOG_WARN, imu->utime,
+                       "IMU back after a silence; the motion during it is not propagated");
+            vl_predict_to(e, e->last_imu_utime + vl_limit_us(e->cfg.max_imu_silence));
             e->state_utime = imu->utime;
         } else {
-            propagate_to(e, imu->utime);
+            vl_predict_to(e, imu->utime);
         }
-        time_passed(e, imu->utime);
+        vl_guard_time_passed(e, imu->utime);
     } else {
         e->state_utime = imu->utime;
         e->clock_utime = imu->utime;
@@ -1046,347 +216,65 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
     return guard_divergence(e, imu->utime, result);
 }
 
-/* Observation validity before any use: finite pixels and a real id. */
-static int observation_valid(const vl_stereo_obs_t *o)
-{
-    return o->id >= 0 && isfinite(o->u_left) && isfinite(o->v_left) && isfinite(o->u_right) &&
-           isfinite(o->v_right);
-}
+/* ---------------------------------------------------------------- update */
 
 /*
- * Physically possible: every pixel inside the image (image_width x image_height,
- * 2 cx x 2 cy when 0) widened by image_margin, and a disparity no larger than
- * max_disparity.
+ * Fuses the frame's k update rows: the gate; a re-associated frame is distrusted
+ * as a whole; otherwise RANSAC picks the inliers, the joint update runs on them
+ * (at most max_update_observations), the noise adapts, and the rejected rows
+ * that agree with the corrected state are rescued in a second update.
  */
-static int observation_plausible(const vl_estimator_t *e, const vl_stereo_obs_t *o)
-{
-    const vl_config_t *c = &e->cfg;
-    const double m = c->image_margin;
-    const double w = (c->image_width > 0.0 ? c->image_width : 2.0 * c->calibration.cx) + m;
-    const double h = (c->image_height > 0.0 ? c->image_height : 2.0 * c->calibration.cy) + m;
-    return o->u_left >= -m && o->u_left <= w && o->u_right >= -m && o->u_right <= w && o->v_left >= -m &&
-           o->v_left <= h && o->v_right >= -m && o->v_right <= h && o->u_left - o->u_right <= c->max_disparity;
-}
-
-static double depth_of(const vl_calibration_t *cal, double disparity)
-{
-    return cal->fx * cal->baseline / disparity;
-}
-
-/*
- * Does a candidate's observation agree with the point its previous observation
- * gave? The comparison allows for that point's pixel noise, one step of motion
- * noise (dt seconds) and this observation's noise: the same gate as updates.
- */
-static int track_consistent(const vl_estimator_t *e, const vl_pending_track_t *t, const double y[3], double dt)
-{
-    if (e->cfg.gate_chi2 <= 0.0) {
-        return 1;
-    }
-    double y_pred[3], Hp[18], Hx[9];
-    if (project_world_point(e, t->point, y_pred, Hp, Hx) != 0) {
-        return 0;
-    }
-    const double sv2 = e->linear_velocity_var * dt * dt;
-    const double sw2 = e->angular_velocity_var * dt * dt;
-    const double s2 = e->pixel_var;
-    double S[9], tmp[9], HQ[18];
-    vl_matmul(Hx, t->covariance, tmp, 3, 3, 3);
-    vl_matmul_bt(tmp, Hx, S, 3, 3, 3);
-    for (int r = 0; r < 3; ++r) {
-        for (int j = 0; j < 6; ++j) {
-            HQ[6 * r + j] = Hp[6 * r + j] * (j < 3 ? sv2 : sw2);
-        }
-    }
-    double HQH[9];
-    vl_matmul_bt(HQ, Hp, HQH, 3, 6, 3);
-    for (int i = 0; i < 9; ++i) {
-        S[i] += HQH[i];
-    }
-    S[0] += s2;
-    S[4] += 0.5 * s2;
-    S[8] += s2;
-    const double r[3] = {y[0] - y_pred[0], y[1] - y_pred[1], y[2] - y_pred[2]};
-    return mahalanobis3(S, r) <= e->cfg.gate_chi2;
-}
-
-/* Candidate for admission, ordered by score. */
-typedef struct {
-    uint32_t obs;
-    double score;
-} candidate_t;
-
-/* Admission candidates of one frame (on the stack of vl_update: a few KiB). */
-typedef struct {
-    candidate_t item[VL_MAX_FRAME_FEATURES];
-    uint32_t count;
-} candidates_t;
-
-static void add_candidate(candidates_t *c, uint32_t obs, double score)
-{
-    if (c->count < VL_MAX_FRAME_FEATURES) {
-        c->item[c->count].obs = obs;
-        c->item[c->count].score = score;
-        c->count++;
-    }
-}
-
-static int disparity_admissible(const vl_estimator_t *e, double disparity)
-{
-    return disparity >= e->cfg.min_disparity && depth_of(&e->cfg.calibration, disparity) <= e->cfg.max_depth;
-}
-
-/*
- * Step 1: observations of window landmarks become update rows (returns how
- * many); the others feed the pending tracks and, once old and consistent
- * enough, become admission candidates.
- */
-static uint32_t classify_observations(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count,
-                                      double frame_dt, candidates_t *candidates)
-{
-    vl_la_obs_t *rows = e->work_rows;
-    uint32_t k = 0;
-    for (uint32_t i = 0; i < count; ++i) {
-        const vl_stereo_obs_t *o = &frame->obs[i];
-        if (!observation_valid(o)) {
-            e->counters.observations_invalid++;
-            continue;
-        }
-        if (!observation_plausible(e, o)) {
-            e->counters.observations_implausible++;
-            continue;
-        }
-        const double disparity = o->u_left - o->u_right;
-        const int slot = find_slot(e, o->id);
-        if (slot >= 0) {
-            if (e->work_seen[slot]) {
-                e->counters.observations_invalid++; /* the same id twice in one frame */
-                continue;
-            }
-            e->work_seen[slot] = 1;
-            vl_landmark_slot_t *s = &e->slots[slot];
-            s->unseen_frames = 0;
-            s->last_utime = frame->utime;
-            s->observations++;
-            if (!(disparity > 0.0)) {
-                e->counters.observations_low_disparity++;
-                continue;
-            }
-            if (make_row(e, (uint32_t)slot, o, &rows[k]) != 0) {
-                e->counters.observations_behind_camera++;
-                continue;
-            }
-            e->work_frame_obs[k] = i;
-            e->work_slot[k] = (uint32_t)slot;
-            k++;
-            continue;
-        }
-        int duplicate = 0;
-        vl_pending_track_t *t = pending_touch(e, o->id, &duplicate);
-        if (duplicate) {
-            e->counters.observations_invalid++;
-            continue;
-        }
-        if (!disparity_admissible(e, disparity)) {
-            e->counters.observations_low_disparity++;
-            if (t != NULL) {
-                t->frames_seen = 0; /* no usable point to compare the next observation with */
-            }
-            continue;
-        }
-        if (t == NULL) {
-            continue; /* pending table full: the track is retried next frame */
-        }
-        double y[3];
-        vl_stereo_compress(o, y);
-        if (t->frames_seen >= 2 && !track_consistent(e, t, y, frame_dt)) {
-            e->counters.tracks_inconsistent++;
-            t->frames_seen = 1;
-        }
-        triangulate_world(e, y, t->point, t->covariance);
-        if (t->frames_seen >= e->cfg.min_track_length) {
-            /* Larger disparity (nearer, better conditioned) and longer tracks go first. */
-            const uint32_t age = t->frames_seen - 1u;
-            add_candidate(candidates, i, disparity * (1.0 + 0.5 * (double)(age < 4u ? age : 4u)));
-        }
-    }
-    return k;
-}
-
-/* Marks every row's landmark as a broken track (see rescue_outliers). */
-static void break_all_rows(vl_estimator_t *e, uint32_t k)
-{
-    for (uint32_t i = 0; i < k; ++i) {
-        e->work_seen[e->work_slot[i]] = 2;
-        e->work_broken[e->num_broken++] = e->work_frame_obs[i];
-    }
-}
-
-/*
- * Step 2: outlier rejection, the joint update with the inliers, then a second
- * update with the outliers that agree with the corrected state.
- */
-static vl_status_t update_with_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t k)
+static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t k)
 {
     vl_la_obs_t *rows = e->work_rows;
     if (k == 0) {
         return VL_OK;
     }
     if (e->cfg.gate_chi2 <= 0.0) {
-        return apply_update(e, rows, k); /* no outlier rejection at all (the seed's plain EKF) */
+        return vl_update_apply(e, rows, k); /* no outlier rejection at all (the seed's plain EKF) */
     }
-    const uint32_t contradicting = gate_rows(e, rows, k);
-    if (k >= VL_MIN_ROWS_FOR_REASSOCIATION && (double)contradicting > e->cfg.max_broken_fraction * (double)k) {
+    const uint32_t contradicting = vl_outliers_gate(e, rows, k);
+    if (vl_outliers_reassociated(e, k, contradicting)) {
         /* Most tracks contradict the state at once: the tracker re-associated its
          * ids (it does so when it detects new features). None of these
          * observations is trusted; every observed landmark restarts. */
         e->counters.frames_reassociated++;
         e->counters.observations_gated += k;
-        break_all_rows(e, k);
-        /* A tracker re-associates on single frames; frame after frame contradicting
-         * the prior means the prior is overconfident: widen the motion noise. */
-        if (e->cfg.adaptive_noise && ++e->reassociated_run >= 2) {
-            const double f = VL_NOISE_WIDEN_ON_CONTRADICTION;
-            e->linear_velocity_var = clamp_var(e->linear_velocity_var * f, e->cfg.linear_velocity_noise);
-            e->angular_velocity_var = clamp_var(e->angular_velocity_var * f, e->cfg.angular_velocity_noise);
-            e->pixel_var = clamp_var(e->pixel_var * f, e->cfg.pixel_noise);
+        vl_outliers_break_all(e, k);
+        if (e->cfg.adaptive_noise && ++e->reassociated_run >= VL_NOISE_CONTRADICTION_RUN) {
+            vl_noise_widen(e);
         }
         return VL_OK;
     }
     e->reassociated_run = 0;
     if (e->cfg.ransac_hypotheses > 0 && k >= 2) {
-        ransac_rows(e, rows, k);
+        vl_outliers_ransac(e, rows, k);
     }
-    uint32_t inliers = partition_rows(e, rows, k);
-    const uint32_t rest = k - inliers;
-    const uint32_t cap = e->cfg.max_update_observations;
-    if (cap > 0 && inliers > cap) {
-        /* A time bound: an evenly spread subset of the inliers; the others stay
-         * in the window and are used in later frames. */
-        for (uint32_t i = 0; i < cap; ++i) {
-            swap_rows(e, rows, i, (uint32_t)(((uint64_t)i * inliers) / cap));
-        }
-        e->counters.observations_deferred += inliers - cap;
-        inliers = cap;
-    }
+    const uint32_t partitioned = vl_outliers_partition(e, rows, k);
+    const uint32_t rest = k - partitioned;
+    const uint32_t inliers = vl_rows_limit(e, rows, partitioned);
     double prior_diag[6];
     for (uint32_t i = 0; i < 6; ++i) {
-        prior_diag[i] = *P_at(e, i, i);
+        prior_diag[i] = *vl_P_at(e, i, i);
     }
-    vl_status_t st = apply_update(e, rows, inliers);
+    vl_status_t st = vl_update_apply(e, rows, inliers);
     if (st == VL_OK && inliers > 0 && e->cfg.adaptive_noise) {
-        adapt_pixel_noise(e, rows, k);
-        adapt_velocity_noise(e, prior_diag);
+        vl_noise_adapt_pixel(e, rows, k);
+        vl_noise_adapt_velocity(e, prior_diag);
     }
     if (st != VL_OK || rest == 0) {
         e->counters.observations_gated += rest;
         return st;
     }
-    uint32_t rescued = rescue_outliers(e, frame, rows, inliers, rest);
+    uint32_t rescued = vl_outliers_rescue(e, frame, rows, inliers, rest);
     e->counters.observations_rescued += rescued;
     e->counters.observations_gated += rest - rescued;
+    const uint32_t cap = e->cfg.max_update_observations;
     if (cap > 0 && inliers + rescued > cap) {
         e->counters.observations_deferred += inliers + rescued - cap;
         rescued = cap - inliers;
     }
-    return apply_update(e, rows, rescued);
-}
-
-/* Step 3: tracks that ended or broke leave the window for the map. */
-static void retire_landmarks(vl_estimator_t *e)
-{
-    /* Walk down: marginalizing moves the last slot into the freed one. */
-    for (uint32_t s = e->num_landmarks; s-- > 0;) {
-        if (e->work_seen[s] == 2) {
-            marginalize_slot(e, s);
-            e->counters.tracks_broken++;
-        } else if (!e->work_seen[s] && ++e->slots[s].unseen_frames > e->cfg.max_unseen_frames) {
-            marginalize_slot(e, s);
-        }
-    }
-}
-
-/* The unobserved landmark unseen longest, or -1: a landmark observed now is never evicted. */
-static int eviction_victim(const vl_estimator_t *e)
-{
-    int victim = -1;
-    uint32_t longest = 0;
-    for (uint32_t s = 0; s < e->num_landmarks; ++s) {
-        if (!e->work_seen[s] && e->slots[s].unseen_frames >= longest) {
-            longest = e->slots[s].unseen_frames;
-            victim = (int)s;
-        }
-    }
-    return victim;
-}
-
-/* Step 4: admissions, best first, including the restarts of broken tracks. */
-static void admit_candidates(vl_estimator_t *e, const vl_stereo_frame_t *frame, candidates_t *c)
-{
-    for (uint32_t b = 0; b < e->num_broken; ++b) {
-        const vl_stereo_obs_t *o = &frame->obs[e->work_broken[b]];
-        const double disparity = o->u_left - o->u_right;
-        if (disparity_admissible(e, disparity)) {
-            add_candidate(c, e->work_broken[b], disparity);
-        }
-    }
-    for (uint32_t i = 1; i < c->count; ++i) { /* insertion sort: stable, so deterministic */
-        const candidate_t item = c->item[i];
-        uint32_t j = i;
-        while (j > 0 && c->item[j - 1].score < item.score) {
-            c->item[j] = c->item[j - 1];
-            --j;
-        }
-        c->item[j] = item;
-    }
-    for (uint32_t i = 0; i < c->count; ++i) {
-        const vl_stereo_obs_t *o = &frame->obs[c->item[i].obs];
-        if (e->num_landmarks >= e->cfg.max_landmarks) {
-            const int victim = eviction_victim(e);
-            if (victim < 0) {
-                e->counters.landmarks_deferred += c->count - i;
-                break;
-            }
-            marginalize_slot(e, (uint32_t)victim);
-            e->counters.landmarks_evicted++;
-        }
-        double y[3];
-        vl_stereo_compress(o, y);
-        admit_landmark(e, o->id, y);
-        /* An admitted id leaves the pending table. */
-        for (uint32_t p = 0; p < e->num_pending; ++p) {
-            if (e->pending[p].id == o->id) {
-                e->pending[p].id = -1;
-                break;
-            }
-        }
-    }
-    pending_compact(e);
-}
-
-/*
- * A frame that repeats the previous frame's pixels exactly, for every id the two
- * share, is the same image delivered twice: the vehicle moved on, the image did not.
- */
-static int frame_repeats_previous(const vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count)
-{
-    uint32_t common = 0;
-    for (uint32_t i = 0; i < count; ++i) {
-        const vl_stereo_obs_t *o = &frame->obs[i];
-        for (uint32_t j = 0; j < e->num_prev_obs; ++j) {
-            const vl_stereo_obs_t *q = &e->prev_obs[j];
-            if (q->id != o->id) {
-                continue;
-            }
-            if (q->u_left != o->u_left || q->v_left != o->v_left || q->u_right != o->u_right ||
-                q->v_right != o->v_right) {
-                return 0;
-            }
-            common++;
-            break;
-        }
-    }
-    return common > 0;
+    return vl_update_apply(e, rows, rescued);
 }
 
 vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
@@ -1400,27 +288,27 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         }
         return VL_ERR_NOT_READY;
     }
-    const vl_status_t time_st = check_time(e, INPUT_FRAME, frame->utime);
+    const vl_status_t time_st = vl_guard_check_time(e, VL_INPUT_FRAME, frame->utime);
     if (time_st != VL_OK) {
         /* A frame adds to a candidate timeline; the restart waits for an IMU sample to set the clock. */
-        (void)note_timeline(e, INPUT_FRAME, frame->utime);
+        (void)vl_guard_note_timeline(e, VL_INPUT_FRAME, frame->utime);
         e->counters.frames_rejected++;
         if (time_st == VL_ERR_TIME_JUMP) {
             e->counters.time_jumps++;
-            log_msg(e, VL_LOG_WARN, frame->utime, "frame jumping in time rejected");
+            vl_log_msg(e, VL_LOG_WARN, frame->utime, "frame jumping in time rejected");
         } else {
-            log_msg(e, VL_LOG_WARN, frame->utime, "frame out of time order rejected");
+            vl_log_msg(e, VL_LOG_WARN, frame->utime, "frame out of time order rejected");
         }
         return time_st;
     }
-    time_passed(e, frame->utime);
-    if (utime_diff(frame->utime, e->last_imu_utime) > limit_us(e->cfg.max_imu_silence)) {
+    vl_guard_time_passed(e, frame->utime);
+    if (vl_guard_imu_silent_at(e, frame->utime)) {
         e->counters.frames_rejected++;
         e->counters.frames_imu_silent++;
         if (!e->imu_silent) {
             e->imu_silent = 1;
             e->counters.imu_silences++;
-            log_msg(e, VL_LOG_WARN, frame->utime, "IMU silent longer than max_imu_silence; frames refused");
+            vl_log_msg(e, VL_LOG_WARN, frame->utime, "IMU silent longer than max_imu_silence; frames refused");
         }
         return VL_ERR_IMU_SILENT;
     }
@@ -1430,7 +318,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     if (count > VL_MAX_FRAME_FEATURES) {
         e->counters.frames_truncated++;
         e->counters.observations_truncated += count - VL_MAX_FRAME_FEATURES;
-        log_msg(e, VL_LOG_WARN, frame->utime, "frame over VL_MAX_FRAME_FEATURES truncated");
+        vl_log_msg(e, VL_LOG_WARN, frame->utime, "frame over VL_MAX_FRAME_FEATURES truncated");
         count = VL_MAX_FRAME_FEATURES;
         result = VL_FRAME_TRUNCATED;
     }
@@ -1438,13 +326,15 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     /* Counted, and still used: after a repeated image the tracker's frames stay one
      * step behind the clock, so the repeat keeps the vision's timeline coherent
      * (skipping repeats measured worse on every density of the real drives). */
-    if (frame_repeats_previous(e, frame, count)) {
+    if (vl_guard_frame_repeats_previous(e, frame, count)) {
         e->counters.frames_repeated++;
     }
     e->num_prev_obs = count;
     memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
-    propagate_to(e, frame->utime);
-    const double frame_dt = e->have_frame ? (double)utime_diff(frame->utime, e->last_frame_utime) * 1e-6 : 0.0;
+
+    /* 1. Predict to the frame. */
+    vl_predict_to(e, frame->utime);
+    const double frame_dt = e->have_frame ? (double)vl_utime_diff(frame->utime, e->last_frame_utime) * 1e-6 : 0.0;
     e->last_frame_utime = frame->utime;
     e->have_frame = 1;
     e->frame_index++;
@@ -1453,16 +343,19 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         return guard_divergence(e, frame->utime, result);
     }
 
-    memset(e->work_seen, 0, sizeof(e->work_seen));
+    /* 2. Observations of window landmarks become rows; the others feed the candidates. */
+    memset(e->work_seen, VL_SEEN_NONE, sizeof(e->work_seen));
     e->num_broken = 0;
-    candidates_t candidates;
+    vl_candidates_t candidates;
     candidates.count = 0;
-    const uint32_t k = classify_observations(e, frame, count, frame_dt, &candidates);
+    const uint32_t k = vl_window_classify(e, frame, count, frame_dt, &candidates);
+
+    /* 3. Outlier rejection and the joint update. */
     const uint64_t reassociated_before = e->counters.frames_reassociated;
     const uint64_t used_before = e->counters.observations_used;
-    const vl_status_t st = update_with_rows(e, frame, k);
+    const vl_status_t st = fuse_rows(e, frame, k);
     if (st != VL_OK) {
-        log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
+        vl_log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
         result = st;
     }
     /* A frame whose update was refused or contradicted the state extends the run;
@@ -1472,10 +365,15 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     } else if (e->counters.observations_used != used_before) {
         e->failed_frame_run = 0;
     }
-    retire_landmarks(e);
-    admit_candidates(e, frame, &candidates);
+
+    /* 4. Tracks that ended or broke leave the window for the map. */
+    vl_window_retire(e);
+    /* 5. Admissions, best first, including the restarts of broken tracks. */
+    vl_window_admit(e, frame, &candidates);
     return guard_divergence(e, frame->utime, result);
 }
+
+/* ---------------------------------------------------------------- output */
 
 vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
 {
@@ -1492,7 +390,7 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
     double P6[36], Ad[36], Rt[9], pinv[3], tmp[36];
     for (int i = 0; i < 6; ++i) {
         for (int j = 0; j < 6; ++j) {
-            P6[6 * i + j] = e->P[(size_t)j * LD + i];
+            P6[6 * i + j] = e->P[(size_t)j * VL_LD + i];
         }
     }
     for (int i = 0; i < 3; ++i) {
@@ -1522,8 +420,8 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
     out->linear_velocity_noise = sqrt(e->linear_velocity_var);
     out->angular_velocity_noise = sqrt(e->angular_velocity_var);
     out->pixel_noise = sqrt(e->pixel_var);
-    if (!all_finite(out->rotation, 9) || !all_finite(out->position, 3) || !all_finite(out->covariance, 36) ||
-        !all_finite(out->linear_velocity, 3) || !all_finite(out->angular_velocity, 3)) {
+    if (!vl_all_finite(out->rotation, 9) || !vl_all_finite(out->position, 3) || !vl_all_finite(out->covariance, 36) ||
+        !vl_all_finite(out->linear_velocity, 3) || !vl_all_finite(out->angular_velocity, 3)) {
         return VL_ERR_NON_FINITE;
     }
     return VL_OK;
@@ -1545,7 +443,7 @@ vl_status_t vl_get_landmarks(const vl_estimator_t *e, vl_landmark_t *out, size_t
     *count = e->num_landmarks;
     const size_t n = (capacity < e->num_landmarks) ? capacity : e->num_landmarks;
     for (size_t s = 0; s < n; ++s) {
-        landmark_output(e, (uint32_t)s, &out[s]);
+        vl_window_landmark(e, (uint32_t)s, &out[s]);
     }
     return (capacity < e->num_landmarks) ? VL_ERR_CAPACITY : VL_OK;
 }
@@ -1557,7 +455,7 @@ vl_status_t vl_flush_landmarks(vl_estimator_t *e)
     }
     /* Marginalize from the end so no block moves. */
     while (e->num_landmarks > 0) {
-        marginalize_slot(e, e->num_landmarks - 1u);
+        vl_window_marginalize(e, e->num_landmarks - 1u);
     }
     return VL_OK;
 }

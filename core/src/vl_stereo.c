@@ -70,6 +70,13 @@ void vl_stereo_triangulate(const vl_calibration_t *cal, const double y[3], doubl
     }
 }
 
+void vl_stereo_noise_var(double pixel_var, double noise_var[3])
+{
+    noise_var[0] = pixel_var;
+    noise_var[1] = 0.5 * pixel_var;
+    noise_var[2] = pixel_var;
+}
+
 void vl_stereo_matrix(const vl_calibration_t *cal, double M[16])
 {
     int i;

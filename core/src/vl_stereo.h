@@ -35,6 +35,12 @@ void vl_stereo_compress(const vl_stereo_obs_t *obs, double y[3]);
  */
 void vl_stereo_triangulate(const vl_calibration_t *cal, const double y[3], double c[3], double dc_dy[9]);
 
+/**
+ * Noise variances of the compressed observation, diag(s^2, s^2/2, s^2), from the
+ * variance s^2 of one pixel coordinate: the mean of v_left and v_right halves it.
+ */
+void vl_stereo_noise_var(double pixel_var, double noise_var[3]);
+
 /** The full 4x4 stereo matrix M, row-major (for reference and tests). */
 void vl_stereo_matrix(const vl_calibration_t *cal, double M[16]);
 

@@ -1,0 +1,95 @@
+/**
+ * @file vl_estimator_internal.h
+ * @brief What every part of the estimator shares: the state layout, the
+ *        per-frame landmark marks and a few small helpers (internal to core/).
+ *
+ * State order: [rho, phi (pose), linear offset, angular offset, landmark 0, ...].
+ * Offsets are always present in the layout; with estimate_input_offsets off
+ * their covariance stays zero, so they never move. The covariance P is
+ * column-major with leading dimension VL_LD.
+ */
+#ifndef VISLAM_VL_ESTIMATOR_INTERNAL_H
+#define VISLAM_VL_ESTIMATOR_INTERNAL_H
+
+#include "vislam/vislam.h"
+
+#include <math.h>
+
+/** Leading dimension of P and of the update workspaces. */
+#define VL_LD VL_STATE_DIM_MAX
+
+/** First state index of the pose translation error rho. */
+#define VL_IDX_RHO 0
+/** First state index of the pose rotation error phi. */
+#define VL_IDX_PHI 3
+/** First state index of the linear velocity offset. */
+#define VL_IDX_OFFSET_LIN 6
+/** First state index of the angular velocity offset. */
+#define VL_IDX_OFFSET_ANG 9
+
+/** What the current frame did to a window landmark (work_seen). */
+typedef enum {
+    VL_SEEN_NONE = 0,  /**< not observed in this frame */
+    VL_SEEN = 1,       /**< observed (or admitted) in this frame */
+    VL_SEEN_BROKEN = 2 /**< observed, contradicting it: a broken track, mapped and restarted */
+} vl_seen_t;
+
+/** Element (row, col) of P. */
+static inline double *vl_P_at(vl_estimator_t *e, uint32_t row, uint32_t col)
+{
+    return &e->P[(size_t)col * VL_LD + row];
+}
+
+/** First state index of a window slot's landmark. */
+static inline uint32_t vl_landmark_col(uint32_t slot)
+{
+    return VL_CORE_DIM + 3u * slot;
+}
+
+/** World point of a window landmark, m. */
+static inline const double *vl_landmark_point(const vl_estimator_t *e, uint32_t slot)
+{
+    return &e->landmark_state[3 * slot];
+}
+
+/** Hands a fixed message to the injected logger, if any. */
+static inline void vl_log_msg(const vl_estimator_t *e, vl_log_level_t level, int64_t utime, const char *msg)
+{
+    if (e->cfg.log != NULL) {
+        e->cfg.log(e->cfg.log_user, level, utime, msg);
+    }
+}
+
+/** Nonzero when all n values are finite. */
+static inline int vl_all_finite(const double *v, int n)
+{
+    for (int i = 0; i < n; ++i) {
+        if (!isfinite(v[i])) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+/**
+ * a - b in microseconds, saturated to the int64 range: input times come from
+ * outside, and INT64_MIN or INT64_MAX must not overflow the subtraction.
+ */
+static inline int64_t vl_utime_diff(int64_t a, int64_t b)
+{
+    if (b < 0 && a > INT64_MAX + b) {
+        return INT64_MAX;
+    }
+    if (b > 0 && a < INT64_MIN + b) {
+        return INT64_MIN;
+    }
+    return a - b;
+}
+
+/** A configured time limit in microseconds (vl_config_check bounds it by VL_MAX_TIME_LIMIT s). */
+static inline int64_t vl_limit_us(double seconds)
+{
+    return (int64_t)(seconds * 1e6);
+}
+
+#endif /* VISLAM_VL_ESTIMATOR_INTERNAL_H */

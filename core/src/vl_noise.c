@@ -1,0 +1,145 @@
+/*
+ * Covariance matching, one bounded step per frame: the pixel noise from the
+ * post-fit residuals, the velocity noise from the pose correction, and a
+ * widening when frame after frame contradicts the prior. Bounded work, no
+ * allocation, deterministic.
+ */
+#include "vl_noise.h"
+
+#include <math.h>
+
+#include "vl_estimator_internal.h"
+
+/* Rows of evidence the pixel noise estimate averages over (its forgetting scale). */
+#define VL_PIXEL_NOISE_MEMORY 1000.0
+/* Median of the chi-square distribution with one degree of freedom: a median of squares to a variance. */
+#define VL_CHI2_1_MEDIAN 0.455
+/* Step of the velocity noise in log-variance per frame, at a frame that fully informs the pose. */
+#define VL_VELOCITY_NOISE_GAIN 0.05
+/* Bounds on what one frame's seen-to-expected correction ratio counts as. */
+#define VL_VELOCITY_RATIO_MIN 0.1
+#define VL_VELOCITY_RATIO_MAX 10.0
+/* A block the frame informed less than this (relative to its prior variance) is left alone. */
+#define VL_VELOCITY_MIN_INFORMATION 1e-12
+/* Variance factor applied when frame after frame contradicts the prior. */
+#define VL_NOISE_WIDEN_ON_CONTRADICTION 4.0
+
+/* Keeps a variance within the adaptation's bounds around its configured value. */
+static double clamp_var(double var, double configured_std)
+{
+    const double f = VL_NOISE_ADAPT_RANGE;
+    const double lo = configured_std * configured_std / (f * f), hi = configured_std * configured_std * f * f;
+    return var < lo ? lo : (var > hi ? hi : var);
+}
+
+/* The k-th smallest of v[0..n) (0-based); reorders v. Quickselect with a middle pivot: deterministic. */
+static double select_kth(double *v, uint32_t n, uint32_t k)
+{
+    uint32_t lo = 0, hi = n - 1u;
+    while (lo < hi) {
+        const double pivot = v[lo + (hi - lo) / 2u];
+        uint32_t i = lo, j = hi;
+        while (i <= j) {
+            while (v[i] < pivot) {
+                ++i;
+            }
+            while (v[j] > pivot) {
+                --j;
+            }
+            if (i <= j) {
+                const double t = v[i];
+                v[i] = v[j];
+                v[j] = t;
+                ++i;
+                if (j == 0u) {
+                    break;
+                }
+                --j;
+            }
+        }
+        if (k <= j) {
+            hi = j;
+        } else if (k >= i) {
+            lo = i;
+        } else {
+            return v[k];
+        }
+    }
+    return v[k];
+}
+
+/*
+ * Residual-based covariance matching for the pixel noise, made robust. After the
+ * update, an observation's post-fit residual e has E[e e^T] = R - H P+ H^T, so
+ * each row gives (e_r^2 + (H P+ H^T)_rr) / w_r as a sample of the pixel variance
+ * (w_r the row's share: 1, 1/2, 1). The median over every row of the frame,
+ * outliers included, scaled to a variance, is blind to a minority of outliers
+ * and is not truncated by the inlier selection. It enters an average that
+ * forgets faster the more rows a frame has.
+ */
+void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
+{
+    static const double share[3] = {1.0, 0.5, 1.0};
+    double samples[VL_OBS_DIM * VL_MAX_LANDMARKS];
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < k; ++i) {
+        double S[9];
+        vl_la_obs_covariance(e->P, VL_LD, &rows[i], S); /* H P+ H^T + R */
+        for (int r = 0; r < 3; ++r) {
+            double res = rows[i].residual[r];
+            for (int j = 0; j < 6; ++j) {
+                res -= rows[i].H_pose[6 * r + j] * e->work_dx[j];
+            }
+            for (int j = 0; j < 3; ++j) {
+                res -= rows[i].H_landmark[3 * r + j] * e->work_dx[rows[i].landmark_col + j];
+            }
+            samples[n++] = (res * res + S[4 * r] - rows[i].noise_var[r]) / share[r];
+        }
+    }
+    if (n < 3u) {
+        return;
+    }
+    const double sample = select_kth(samples, n, n / 2u) / VL_CHI2_1_MEDIAN;
+    const double w = 1.0 - exp(-(double)k / VL_PIXEL_NOISE_MEMORY);
+    e->pixel_var = clamp_var((1.0 - w) * e->pixel_var + w * sample, e->cfg.pixel_noise);
+}
+
+/*
+ * Covariance matching for the velocity noise on the pose correction: for a
+ * consistent filter E[dx dx^T] = P- - P+ on the pose block. More correction than
+ * the filter expected means its prediction was too confident (noise too small),
+ * less means too timid. Each variance moves by a fraction of log(ratio), weighted
+ * by how much the frame informed that block, so weak frames barely move it.
+ */
+void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_diag[6])
+{
+    const double *dx = e->work_dx;
+    double *var[2] = {&e->linear_velocity_var, &e->angular_velocity_var};
+    const double configured[2] = {e->cfg.linear_velocity_noise, e->cfg.angular_velocity_noise};
+    for (int b = 0; b < 2; ++b) {
+        double expected = 0.0, seen = 0.0, prior = 0.0;
+        for (int i = 3 * b; i < 3 * b + 3; ++i) {
+            prior += prior_diag[i];
+            expected += prior_diag[i] - *vl_P_at(e, (uint32_t)i, (uint32_t)i);
+            seen += dx[i] * dx[i];
+        }
+        if (!(expected > VL_VELOCITY_MIN_INFORMATION * prior) || !(prior > 0.0)) {
+            continue;
+        }
+        double ratio = seen / expected;
+        ratio = ratio < VL_VELOCITY_RATIO_MIN ? VL_VELOCITY_RATIO_MIN
+                                              : (ratio > VL_VELOCITY_RATIO_MAX ? VL_VELOCITY_RATIO_MAX : ratio);
+        const double gain = VL_VELOCITY_NOISE_GAIN * (expected / prior);
+        *var[b] = clamp_var(*var[b] * exp(gain * log(ratio)), configured[b]);
+    }
+}
+
+/* A tracker re-associates on single frames; frame after frame contradicting the
+ * prior means the prior is overconfident. */
+void vl_noise_widen(vl_estimator_t *e)
+{
+    const double f = VL_NOISE_WIDEN_ON_CONTRADICTION;
+    e->linear_velocity_var = clamp_var(e->linear_velocity_var * f, e->cfg.linear_velocity_noise);
+    e->angular_velocity_var = clamp_var(e->angular_velocity_var * f, e->cfg.angular_velocity_noise);
+    e->pixel_var = clamp_var(e->pixel_var * f, e->cfg.pixel_noise);
+}

@@ -1,0 +1,114 @@
+/*
+ * The update with the stereo camera model z = M pi(q), in the compressed form
+ * y = [u_left, (v_left + v_right) / 2, u_right]. The row of landmark i is
+ * A (rho_i - rho) with A = dy/dc Rc R^T: it does not depend on phi, so the
+ * update cannot invent rotation information about the unobservable directions.
+ */
+#include "vl_update.h"
+
+#include <string.h>
+
+#include "vl_camera.h"
+#include "vl_estimator_internal.h"
+#include "vl_se3.h"
+#include "vl_stereo.h"
+
+/*
+ * With b = R^T (l - p), to first order b = b_hat + R^T (rho_i - rho): the rows are
+ * A = dy/dc Rc R^T on rho_i and -A on rho, and zero on phi.
+ */
+int vl_update_make_row(const vl_estimator_t *e, uint32_t slot, const vl_stereo_obs_t *o, vl_la_obs_t *row)
+{
+    const vl_calibration_t *cal = &e->cfg.calibration;
+    double Rc[9], tc[3], b[3], c[3], dy_dc[9], y_pred[3], y[3], RcRt[9];
+    vl_camera_extrinsics(cal, Rc, tc);
+    if (vl_camera_point(e, Rc, tc, vl_landmark_point(e, slot), b, c) != 0) {
+        return -1;
+    }
+    vl_stereo_project(cal, c, y_pred, dy_dc);
+    vl_matmul_bt(Rc, e->R, RcRt, 3, 3, 3);
+    vl_matmul(dy_dc, RcRt, row->H_landmark, 3, 3, 3);
+    memset(row->H_pose, 0, sizeof(row->H_pose));
+    if (e->cfg.mode != VL_MODE_MAPPING) {
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) {
+                row->H_pose[6 * i + VL_IDX_RHO + j] = -row->H_landmark[3 * i + j];
+            }
+        }
+    }
+    vl_stereo_compress(o, y);
+    for (int r = 0; r < 3; ++r) {
+        row->residual[r] = y[r] - y_pred[r];
+    }
+    vl_stereo_noise_var(e->pixel_var, row->noise_var);
+    row->landmark_col = (int)vl_landmark_col(slot);
+    return 0;
+}
+
+void vl_rows_swap(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t a, uint32_t b)
+{
+    if (a == b) {
+        return;
+    }
+    vl_la_obs_t t = rows[a];
+    rows[a] = rows[b];
+    rows[b] = t;
+    uint32_t s = e->work_slot[a];
+    e->work_slot[a] = e->work_slot[b];
+    e->work_slot[b] = s;
+    uint32_t f = e->work_frame_obs[a];
+    e->work_frame_obs[a] = e->work_frame_obs[b];
+    e->work_frame_obs[b] = f;
+}
+
+/* The others stay in the window and are used in later frames. */
+uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m)
+{
+    const uint32_t cap = e->cfg.max_update_observations;
+    if (cap == 0 || m <= cap) {
+        return m;
+    }
+    for (uint32_t i = 0; i < cap; ++i) {
+        vl_rows_swap(e, rows, i, (uint32_t)(((uint64_t)i * m) / cap));
+    }
+    e->counters.observations_deferred += m - cap;
+    return cap;
+}
+
+vl_status_t vl_update_apply(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t m)
+{
+    if (m == 0) {
+        return VL_OK;
+    }
+    vl_la_workspace_t ws = {e->work_PHt, e->work_S, e->work_dx};
+    const uint32_t n = vl_state_dim(e);
+    if (vl_la_update(e->P, VL_LD, (int)n, rows, (int)m, &ws) != 0 || !vl_all_finite(e->work_dx, (int)n)) {
+        e->counters.numerical_failures++;
+        return VL_ERR_NOT_POSITIVE_DEFINITE;
+    }
+    /* X <- exp(dx) X on SE_{K+1}(3): every position turns with the rotation
+     * correction and moves by J_l(phi) times its own translation correction. */
+    const double *dx = e->work_dx;
+    double dR[9], dp[3], Jl[9], Rn[9], v[3], w[3];
+    vl_se3_exp(&dx[VL_IDX_RHO], dR, dp);
+    vl_so3_left_jacobian(&dx[VL_IDX_PHI], Jl);
+    vl_matmul(dR, e->R, Rn, 3, 3, 3);
+    memcpy(e->R, Rn, sizeof(Rn));
+    vl_so3_normalize(e->R);
+    vl_matmul(dR, e->p, v, 3, 3, 1);
+    for (int i = 0; i < 3; ++i) {
+        e->p[i] = v[i] + dp[i];
+        e->offset_linear[i] += dx[VL_IDX_OFFSET_LIN + i];
+        e->offset_angular[i] += dx[VL_IDX_OFFSET_ANG + i];
+    }
+    for (uint32_t s = 0; s < e->num_landmarks; ++s) {
+        double *l = &e->landmark_state[3 * s];
+        vl_matmul(dR, l, v, 3, 3, 1);
+        vl_matmul(Jl, &dx[vl_landmark_col(s)], w, 3, 3, 1);
+        for (int i = 0; i < 3; ++i) {
+            l[i] = v[i] + w[i];
+        }
+    }
+    e->counters.observations_used += m;
+    return VL_OK;
+}

@@ -1,0 +1,40 @@
+/**
+ * @file vl_update.h
+ * @brief The update: one observation's rows, the joint update and the state
+ *        correction (internal to core/).
+ *
+ * The rows of a frame live in e->work_rows[0 .. k); work_slot and work_frame_obs
+ * hold, for each row, its window slot and its index in the frame. Every
+ * reordering of the rows goes through vl_rows_swap, which keeps the three together.
+ */
+#ifndef VISLAM_VL_UPDATE_H
+#define VISLAM_VL_UPDATE_H
+
+#include "vislam/vislam.h"
+
+#include "vl_linalg.h"
+
+/**
+ * Update rows of one window landmark's observation at the current state.
+ * @return 0, or -1 when the landmark is predicted behind the camera (row unset).
+ */
+int vl_update_make_row(const vl_estimator_t *e, uint32_t slot, const vl_stereo_obs_t *o, vl_la_obs_t *row);
+
+/** Swaps rows a and b together with their slot and frame index. */
+void vl_rows_swap(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t a, uint32_t b);
+
+/**
+ * The time bound: when more than max_update_observations rows are given, an
+ * evenly spread subset of that many moves to the front and the others are
+ * counted as deferred. Returns how many rows the update uses.
+ */
+uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m);
+
+/**
+ * Joint update with the first m rows, then the state correction it gives
+ * (left in e->work_dx). Counts observations_used, or numerical_failures.
+ * @return VL_OK, or VL_ERR_NOT_POSITIVE_DEFINITE with P and the state untouched.
+ */
+vl_status_t vl_update_apply(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t m);
+
+#endif /* VISLAM_VL_UPDATE_H */

@@ -1,0 +1,374 @@
+/*
+ * The bounded landmark window. A track becomes a landmark after min_track_length
+ * frames if its observations agree; when the window is full, candidates are
+ * ranked by disparity (nearer points constrain translation better) times a bonus
+ * for track age, and room is made only by evicting landmarks not observed in
+ * this frame. A landmark whose track ended or broke is marginalized: its rows
+ * and columns are dropped, the exact Gaussian marginal, and it goes to the map.
+ */
+#include "vl_window.h"
+
+#include <string.h>
+
+#include "vl_camera.h"
+#include "vl_estimator_internal.h"
+#include "vl_guard.h"
+#include "vl_linalg.h"
+#include "vl_se3.h"
+#include "vl_stereo.h"
+#include "vl_update.h"
+
+/* Admission score bonus per frame of track age (frames seen before this one)... */
+#define VL_ADMISSION_AGE_BONUS 0.5
+/* ...counted up to this age: a track already seen 4 frames ranks at 3x its disparity. */
+#define VL_ADMISSION_AGE_CAP 4u
+
+static int find_slot(const vl_estimator_t *e, int32_t id)
+{
+    for (uint32_t s = 0; s < e->num_landmarks; ++s) {
+        if (e->slots[s].id == id) {
+            return (int)s;
+        }
+    }
+    return -1;
+}
+
+/* World position and covariance: delta l = rho_i - hat(l) phi (or rho_i alone when mapping). */
+void vl_window_landmark(const vl_estimator_t *e, uint32_t slot, vl_landmark_t *out)
+{
+    const vl_landmark_slot_t *s = &e->slots[slot];
+    const double *l = vl_landmark_point(e, slot);
+    memcpy(out->position, l, 3 * sizeof(double));
+    const uint32_t c = vl_landmark_col(slot);
+    const uint32_t idx[6] = {VL_IDX_PHI, VL_IDX_PHI + 1, VL_IDX_PHI + 2, c, c + 1, c + 2};
+    double B[36];
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < 6; ++j) {
+            B[6 * i + j] = e->P[(size_t)idx[j] * VL_LD + idx[i]];
+        }
+    }
+    double J[18] = {0};
+    if (e->cfg.mode != VL_MODE_MAPPING) {
+        double S[9];
+        vl_skew(l, S);
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) {
+                J[6 * i + j] = -S[3 * i + j];
+            }
+        }
+    }
+    J[3] = J[6 + 4] = J[12 + 5] = 1.0;
+    double JB[18];
+    vl_matmul(J, B, JB, 3, 6, 6);
+    vl_matmul_bt(JB, J, out->covariance, 3, 6, 3);
+    out->id = s->id;
+    out->observations = s->observations;
+    out->first_utime = s->first_utime;
+    out->last_utime = s->last_utime;
+}
+
+void vl_window_marginalize(vl_estimator_t *e, uint32_t slot)
+{
+    if (e->cfg.landmark_sink != NULL) {
+        vl_landmark_t lm;
+        vl_window_landmark(e, slot, &lm);
+        e->cfg.landmark_sink(e->cfg.landmark_sink_user, &lm);
+    }
+    const uint32_t last = e->num_landmarks - 1u;
+    if (slot != last) {
+        vl_la_move_block(e->P, VL_LD, (int)vl_state_dim(e), (int)vl_landmark_col(slot), (int)vl_landmark_col(last));
+        e->slots[slot] = e->slots[last];
+        memcpy(&e->landmark_state[3 * slot], &e->landmark_state[3 * last], 3 * sizeof(double));
+        e->work_seen[slot] = e->work_seen[last];
+    }
+    e->num_landmarks--;
+    e->counters.landmarks_marginalized++;
+}
+
+/*
+ * Admits a landmark from one stereo observation y (compressed): l = R b + p with
+ * b the triangulated point in the IMU frame. In invariant coordinates its error is
+ * rho (the pose's) plus the pixel part, so it gets the exact first-order
+ * cross-covariance to every state through the pose translation error.
+ */
+static void admit_landmark(vl_estimator_t *e, int32_t id, const double y[3])
+{
+    const uint32_t slot = e->num_landmarks;
+    vl_landmark_slot_t *s = &e->slots[slot];
+    double *l = &e->landmark_state[3 * slot];
+    double J_pose[18] = {0}, J_obs[9], noise[3];
+    vl_camera_triangulate_world(e, y, l, J_obs);
+    if (e->cfg.mode != VL_MODE_MAPPING) {
+        for (int i = 0; i < 3; ++i) {
+            J_pose[6 * i + VL_IDX_RHO + i] = 1.0;
+        }
+    }
+    vl_stereo_noise_var(e->pixel_var, noise);
+    vl_la_append_landmark(e->P, VL_LD, (int)vl_state_dim(e), J_pose, J_obs, noise);
+
+    s->id = id;
+    s->observations = 1;
+    s->unseen_frames = 0;
+    s->first_utime = e->state_utime;
+    s->last_utime = e->state_utime;
+    e->work_seen[slot] = VL_SEEN;
+    e->num_landmarks++;
+    e->counters.landmarks_initialized++;
+    if (e->num_landmarks > e->counters.window_peak) {
+        e->counters.window_peak = e->num_landmarks;
+    }
+}
+
+/* The candidate track of id, continued in this frame (or started); *duplicate when already seen in it. */
+static vl_pending_track_t *pending_touch(vl_estimator_t *e, int32_t id, int *duplicate)
+{
+    *duplicate = 0;
+    for (uint32_t i = 0; i < e->num_pending; ++i) {
+        vl_pending_track_t *t = &e->pending[i];
+        if (t->id == id) {
+            if (t->last_frame == e->frame_index) {
+                *duplicate = 1;
+                return t;
+            }
+            t->frames_seen++;
+            t->last_frame = e->frame_index;
+            return t;
+        }
+    }
+    if (e->num_pending >= VL_MAX_PENDING) {
+        return NULL;
+    }
+    vl_pending_track_t *t = &e->pending[e->num_pending++];
+    t->id = id;
+    t->frames_seen = 1;
+    t->last_frame = e->frame_index;
+    return t;
+}
+
+/* Keeps only candidates seen in this frame: tracks have no gaps, an unseen one has ended. */
+static void pending_compact(vl_estimator_t *e)
+{
+    uint32_t out = 0;
+    for (uint32_t i = 0; i < e->num_pending; ++i) {
+        if (e->pending[i].last_frame == e->frame_index && e->pending[i].id >= 0) {
+            e->pending[out++] = e->pending[i];
+        }
+    }
+    e->num_pending = out;
+}
+
+/* A pending track's world point and its covariance from pixel noise alone, from observation y. */
+static void pending_triangulate(const vl_estimator_t *e, const double y[3], vl_pending_track_t *t)
+{
+    double J[9], nv[3], tmp[9];
+    vl_camera_triangulate_world(e, y, t->point, J);
+    vl_stereo_noise_var(e->pixel_var, nv);
+    const double noise[9] = {nv[0], 0, 0, 0, nv[1], 0, 0, 0, nv[2]};
+    vl_matmul(J, noise, tmp, 3, 3, 3);
+    vl_matmul_bt(tmp, J, t->covariance, 3, 3, 3);
+}
+
+/*
+ * Does a candidate's observation agree with the point its previous observation
+ * gave? The comparison allows for that point's pixel noise, one step of motion
+ * noise (dt seconds) and this observation's noise: the same gate as updates.
+ */
+static int track_consistent(const vl_estimator_t *e, const vl_pending_track_t *t, const double y[3], double dt)
+{
+    if (e->cfg.gate_chi2 <= 0.0) {
+        return 1;
+    }
+    double y_pred[3], Hp[18], Hx[9];
+    if (vl_camera_project_world(e, t->point, y_pred, Hp, Hx) != 0) {
+        return 0;
+    }
+    const double sv2 = e->linear_velocity_var * dt * dt;
+    const double sw2 = e->angular_velocity_var * dt * dt;
+    double nv[3];
+    vl_stereo_noise_var(e->pixel_var, nv);
+    double S[9], tmp[9], HQ[18];
+    vl_matmul(Hx, t->covariance, tmp, 3, 3, 3);
+    vl_matmul_bt(tmp, Hx, S, 3, 3, 3);
+    for (int r = 0; r < 3; ++r) {
+        for (int j = 0; j < 6; ++j) {
+            HQ[6 * r + j] = Hp[6 * r + j] * (j < VL_IDX_PHI ? sv2 : sw2);
+        }
+    }
+    double HQH[9];
+    vl_matmul_bt(HQ, Hp, HQH, 3, 6, 3);
+    for (int i = 0; i < 9; ++i) {
+        S[i] += HQH[i];
+    }
+    S[0] += nv[0];
+    S[4] += nv[1];
+    S[8] += nv[2];
+    const double r[3] = {y[0] - y_pred[0], y[1] - y_pred[1], y[2] - y_pred[2]};
+    return vl_mahalanobis3(S, r) <= e->cfg.gate_chi2;
+}
+
+static void add_candidate(vl_candidates_t *c, uint32_t obs, double score)
+{
+    if (c->count < VL_MAX_FRAME_FEATURES) {
+        c->item[c->count].obs = obs;
+        c->item[c->count].score = score;
+        c->count++;
+    }
+}
+
+/* Larger disparity (nearer, better conditioned) and longer tracks go first. */
+static double admission_score(double disparity, uint32_t frames_seen)
+{
+    const uint32_t age = frames_seen - 1u;
+    const uint32_t counted = age < VL_ADMISSION_AGE_CAP ? age : VL_ADMISSION_AGE_CAP;
+    return disparity * (1.0 + VL_ADMISSION_AGE_BONUS * (double)counted);
+}
+
+static double depth_of(const vl_calibration_t *cal, double disparity)
+{
+    return cal->fx * cal->baseline / disparity;
+}
+
+static int disparity_admissible(const vl_estimator_t *e, double disparity)
+{
+    return disparity >= e->cfg.min_disparity && depth_of(&e->cfg.calibration, disparity) <= e->cfg.max_depth;
+}
+
+uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count, double frame_dt,
+                            vl_candidates_t *candidates)
+{
+    vl_la_obs_t *rows = e->work_rows;
+    uint32_t k = 0;
+    for (uint32_t i = 0; i < count; ++i) {
+        const vl_stereo_obs_t *o = &frame->obs[i];
+        if (!vl_guard_observation_valid(o)) {
+            e->counters.observations_invalid++;
+            continue;
+        }
+        if (!vl_guard_observation_plausible(e, o)) {
+            e->counters.observations_implausible++;
+            continue;
+        }
+        const double disparity = o->u_left - o->u_right;
+        const int slot = find_slot(e, o->id);
+        if (slot >= 0) {
+            if (e->work_seen[slot] != VL_SEEN_NONE) {
+                e->counters.observations_invalid++; /* the same id twice in one frame */
+                continue;
+            }
+            e->work_seen[slot] = VL_SEEN;
+            vl_landmark_slot_t *s = &e->slots[slot];
+            s->unseen_frames = 0;
+            s->last_utime = frame->utime;
+            s->observations++;
+            if (!(disparity > 0.0)) {
+                e->counters.observations_low_disparity++;
+                continue;
+            }
+            if (vl_update_make_row(e, (uint32_t)slot, o, &rows[k]) != 0) {
+                e->counters.observations_behind_camera++;
+                continue;
+            }
+            e->work_frame_obs[k] = i;
+            e->work_slot[k] = (uint32_t)slot;
+            k++;
+            continue;
+        }
+        int duplicate = 0;
+        vl_pending_track_t *t = pending_touch(e, o->id, &duplicate);
+        if (duplicate) {
+            e->counters.observations_invalid++;
+            continue;
+        }
+        if (!disparity_admissible(e, disparity)) {
+            e->counters.observations_low_disparity++;
+            if (t != NULL) {
+                t->frames_seen = 0; /* no usable point to compare the next observation with */
+            }
+            continue;
+        }
+        if (t == NULL) {
+            continue; /* pending table full: the track is retried next frame */
+        }
+        double y[3];
+        vl_stereo_compress(o, y);
+        if (t->frames_seen >= 2 && !track_consistent(e, t, y, frame_dt)) {
+            e->counters.tracks_inconsistent++;
+            t->frames_seen = 1;
+        }
+        pending_triangulate(e, y, t);
+        if (t->frames_seen >= e->cfg.min_track_length) {
+            add_candidate(candidates, i, admission_score(disparity, t->frames_seen));
+        }
+    }
+    return k;
+}
+
+void vl_window_retire(vl_estimator_t *e)
+{
+    /* Walk down: marginalizing moves the last slot into the freed one. */
+    for (uint32_t s = e->num_landmarks; s-- > 0;) {
+        if (e->work_seen[s] == VL_SEEN_BROKEN) {
+            vl_window_marginalize(e, s);
+            e->counters.tracks_broken++;
+        } else if (e->work_seen[s] == VL_SEEN_NONE && ++e->slots[s].unseen_frames > e->cfg.max_unseen_frames) {
+            vl_window_marginalize(e, s);
+        }
+    }
+}
+
+/* The unobserved landmark unseen longest, or -1: a landmark observed now is never evicted. */
+static int eviction_victim(const vl_estimator_t *e)
+{
+    int victim = -1;
+    uint32_t longest = 0;
+    for (uint32_t s = 0; s < e->num_landmarks; ++s) {
+        if (e->work_seen[s] == VL_SEEN_NONE && e->slots[s].unseen_frames >= longest) {
+            longest = e->slots[s].unseen_frames;
+            victim = (int)s;
+        }
+    }
+    return victim;
+}
+
+void vl_window_admit(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_candidates_t *c)
+{
+    for (uint32_t b = 0; b < e->num_broken; ++b) {
+        const vl_stereo_obs_t *o = &frame->obs[e->work_broken[b]];
+        const double disparity = o->u_left - o->u_right;
+        if (disparity_admissible(e, disparity)) {
+            add_candidate(c, e->work_broken[b], disparity);
+        }
+    }
+    for (uint32_t i = 1; i < c->count; ++i) { /* insertion sort: stable, so deterministic */
+        const vl_candidate_t item = c->item[i];
+        uint32_t j = i;
+        while (j > 0 && c->item[j - 1].score < item.score) {
+            c->item[j] = c->item[j - 1];
+            --j;
+        }
+        c->item[j] = item;
+    }
+    for (uint32_t i = 0; i < c->count; ++i) {
+        const vl_stereo_obs_t *o = &frame->obs[c->item[i].obs];
+        if (e->num_landmarks >= e->cfg.max_landmarks) {
+            const int victim = eviction_victim(e);
+            if (victim < 0) {
+                e->counters.landmarks_deferred += c->count - i;
+                break;
+            }
+            vl_window_marginalize(e, (uint32_t)victim);
+            e->counters.landmarks_evicted++;
+        }
+        double y[3];
+        vl_stereo_compress(o, y);
+        admit_landmark(e, o->id, y);
+        /* An admitted id leaves the pending table. */
+        for (uint32_t p = 0; p < e->num_pending; ++p) {
+            if (e->pending[p].id == o->id) {
+                e->pending[p].id = -1;
+                break;
+            }
+        }
+    }
+    pending_compact(e);
+}

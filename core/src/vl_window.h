@@ -1,0 +1,53 @@
+/**
+ * @file vl_window.h
+ * @brief The landmark window: slots, pending tracks, admission, eviction,
+ *        marginalization and landmark output (internal to core/).
+ *
+ * During a frame, work_seen[slot] (a vl_seen_t) says what the frame did to each
+ * window landmark, and work_broken lists the frame observations whose tracks
+ * broke; both are reset at the start of the frame.
+ */
+#ifndef VISLAM_VL_WINDOW_H
+#define VISLAM_VL_WINDOW_H
+
+#include "vislam/vislam.h"
+
+/** Candidate for admission: a frame observation and its rank. */
+typedef struct {
+    uint32_t obs;  /**< index in the frame */
+    double score;  /**< higher is admitted first */
+} vl_candidate_t;
+
+/** Admission candidates of one frame (on the stack of vl_update: a few KiB). */
+typedef struct {
+    vl_candidate_t item[VL_MAX_FRAME_FEATURES];
+    uint32_t count;
+} vl_candidates_t;
+
+/**
+ * Sorts a frame's observations: those of window landmarks become update rows in
+ * e->work_rows (with work_slot, work_frame_obs) and mark their slot seen; the
+ * others feed the pending tracks and, once old and consistent enough, become
+ * admission candidates. frame_dt is the time since the previous frame, s.
+ * @return the number of update rows
+ */
+uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count, double frame_dt,
+                            vl_candidates_t *candidates);
+
+/** Tracks that ended (unseen too long) or broke leave the window for the map. */
+void vl_window_retire(vl_estimator_t *e);
+
+/**
+ * Admits the candidates and the restarts of broken tracks, best first, evicting
+ * unobserved landmarks when the window is full; then drops the pending tracks
+ * this frame did not continue.
+ */
+void vl_window_admit(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_candidates_t *candidates);
+
+/** A window landmark as the API hands it out: world position and 3x3 covariance. */
+void vl_window_landmark(const vl_estimator_t *e, uint32_t slot, vl_landmark_t *out);
+
+/** Hands a landmark to the map sink and drops its rows and columns (exact marginal). */
+void vl_window_marginalize(vl_estimator_t *e, uint32_t slot);
+
+#endif /* VISLAM_VL_WINDOW_H */
