@@ -231,52 +231,67 @@ typedef struct {
     double pixel_noise;            /**< px, likewise */
 } vl_pose_t;
 
-/** Running counters; all monotonic since vl_init. */
+/**
+ * Every counter, in declaration order: X(type, name, meaning). vl_counters_t's
+ * members, VL_NUM_COUNTERS and vl_counters_list() all come from this list, so a
+ * new counter is one line here. All counters are monotonic since vl_init; the
+ * type is uint64_t or uint32_t (vl_counter_entry_t carries any of them).
+ */
+#define VL_COUNTERS(X) \
+    X(uint64_t, imu_accepted,               "IMU samples used") \
+    X(uint64_t, imu_rejected,               "IMU samples refused (non-finite, time order, time jump, implausible)") \
+    X(uint64_t, frames_accepted,            "frames used") \
+    X(uint64_t, frames_rejected,            "frames refused (time order, time jump, not ready, IMU silent)") \
+    X(uint64_t, frames_truncated,           "frames over VL_MAX_FRAME_FEATURES") \
+    X(uint64_t, observations_received,      "observations in accepted frames, before truncation") \
+    X(uint64_t, observations_truncated,     "observations dropped by truncation") \
+    X(uint64_t, observations_invalid,       "non-finite pixels, duplicate ids, negative ids") \
+    X(uint64_t, observations_low_disparity, "refused for disparity below min_disparity or depth above max_depth") \
+    X(uint64_t, observations_used,          "applied in an update") \
+    X(uint64_t, observations_gated,         "refused as outliers (RANSAC or gate, and not rescued)") \
+    X(uint64_t, observations_rescued,       "outliers of the first pass accepted after the correction") \
+    X(uint64_t, observations_deferred,      "inliers left out of an update by max_update_observations") \
+    X(uint64_t, observations_behind_camera, "predicted behind the camera: not used") \
+    X(uint64_t, landmarks_initialized,      "admitted to the window") \
+    X(uint64_t, landmarks_deferred,         "admissions postponed because the window was full") \
+    X(uint64_t, tracks_inconsistent,        "candidate observations that disagreed with their track's previous one") \
+    X(uint64_t, frames_reassociated,        "frames whose tracked observations were all distrusted") \
+    X(uint64_t, frames_repeated,            "frames repeating the previous frame's pixels exactly (a stale image)") \
+    X(uint64_t, tracks_broken,              "window landmarks whose observation contradicted them: mapped, id restarted") \
+    X(uint64_t, landmarks_marginalized,     "left the window and handed to the sink") \
+    X(uint64_t, landmarks_evicted,          "of those, removed early to make room") \
+    X(uint64_t, numerical_failures,         "updates refused with VL_ERR_NOT_POSITIVE_DEFINITE") \
+    X(uint64_t, time_gaps,                  "propagations longer than max_propagation_dt") \
+    X(uint64_t, time_jumps,                 "inputs refused as more than max_time_jump from the clock") \
+    X(uint64_t, timeline_changes,           "re-initializations on a new timeline") \
+    X(uint64_t, divergence_resets,          "re-initializations after divergence") \
+    X(uint64_t, resets,                     "every re-initialization (those two and vl_reset)") \
+    X(uint64_t, landmarks_discarded,        "window landmarks dropped by a reset (not handed to the sink)") \
+    X(uint64_t, imu_implausible,            "IMU samples beyond max_speed or max_rotation_rate") \
+    X(uint64_t, observations_implausible,   "pixels outside the image (with margin) or disparity over max_disparity") \
+    X(uint64_t, imu_silences,               "times the IMU fell silent for longer than max_imu_silence") \
+    X(uint64_t, frames_imu_silent,          "frames refused because the IMU was silent") \
+    X(uint32_t, window_peak,                "most landmarks ever in the window")
+
+/** Running counters; all monotonic since vl_init. One member per VL_COUNTERS row (meaning there). */
 typedef struct {
-    uint64_t imu_accepted;              /**< IMU samples used */
-    uint64_t imu_rejected;              /**< IMU samples refused (non-finite, time order, time jump, implausible) */
-    uint64_t frames_accepted;           /**< frames used */
-    uint64_t frames_rejected;           /**< frames refused (time order, time jump, not ready, IMU silent) */
-    uint64_t frames_truncated;          /**< frames over VL_MAX_FRAME_FEATURES */
-    uint64_t observations_received;     /**< observations in accepted frames, before truncation */
-    uint64_t observations_truncated;    /**< observations dropped by truncation */
-    uint64_t observations_invalid;      /**< non-finite pixels, duplicate ids, negative ids */
-    uint64_t observations_low_disparity;/**< refused for disparity below min_disparity or depth above max_depth */
-    uint64_t observations_used;         /**< applied in an update */
-    uint64_t observations_gated;        /**< refused as outliers (RANSAC or gate, and not rescued) */
-    uint64_t observations_rescued;      /**< outliers of the first pass accepted after the correction */
-    uint64_t observations_deferred;     /**< inliers left out of an update by max_update_observations */
-    uint64_t observations_behind_camera;/**< predicted behind the camera: not used */
-    uint64_t landmarks_initialized;     /**< admitted to the window */
-    uint64_t landmarks_deferred;        /**< admissions postponed because the window was full */
-    uint64_t tracks_inconsistent;       /**< candidate observations that disagreed with their track's previous one */
-    uint64_t frames_reassociated;       /**< frames whose tracked observations were all distrusted */
-    uint64_t frames_repeated;           /**< frames repeating the previous frame's pixels exactly (a stale image) */
-    uint64_t tracks_broken;             /**< window landmarks whose observation contradicted them: mapped, id restarted */
-    uint64_t landmarks_marginalized;    /**< left the window and handed to the sink */
-    uint64_t landmarks_evicted;         /**< of those, removed early to make room */
-    uint64_t numerical_failures;        /**< updates refused with VL_ERR_NOT_POSITIVE_DEFINITE */
-    uint64_t time_gaps;                 /**< propagations longer than max_propagation_dt */
-    uint64_t time_jumps;                /**< inputs refused as more than max_time_jump from the clock */
-    uint64_t timeline_changes;          /**< re-initializations on a new timeline */
-    uint64_t divergence_resets;         /**< re-initializations after divergence */
-    uint64_t resets;                    /**< every re-initialization (those two and vl_reset) */
-    uint64_t landmarks_discarded;       /**< window landmarks dropped by a reset (not handed to the sink) */
-    uint64_t imu_implausible;           /**< IMU samples beyond max_speed or max_rotation_rate */
-    uint64_t observations_implausible;  /**< pixels outside the image (with margin) or disparity over max_disparity */
-    uint64_t imu_silences;              /**< times the IMU fell silent for longer than max_imu_silence */
-    uint64_t frames_imu_silent;         /**< frames refused because the IMU was silent */
-    uint32_t window_peak;               /**< most landmarks ever in the window */
+#define VL_COUNTER_MEMBER_(type, name, meaning) type name;
+    VL_COUNTERS(VL_COUNTER_MEMBER_)
+#undef VL_COUNTER_MEMBER_
 } vl_counters_t;
 
 /** One named counter, for printing and publishing every counter without listing them again. */
 typedef struct {
-    const char *name; /**< the vl_counters_t member's name */
-    uint64_t value;   /**< its value */
+    const char *name;    /**< the vl_counters_t member's name */
+    uint64_t value;      /**< its value */
+    const char *meaning; /**< what it counts (the VL_COUNTERS row's text) */
 } vl_counter_entry_t;
 
-/** Number of members of vl_counters_t. */
-#define VL_NUM_COUNTERS 34
+/** @cond */
+#define VL_COUNTER_ONE_(type, name, meaning) +1
+/** @endcond */
+/** Number of members of vl_counters_t (rows of VL_COUNTERS). */
+#define VL_NUM_COUNTERS (0 VL_COUNTERS(VL_COUNTER_ONE_))
 
 /** Per-landmark bookkeeping of the window (internal; read with vl_get_landmarks). */
 typedef struct {
