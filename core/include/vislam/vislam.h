@@ -26,6 +26,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "vislam/vl_config_schema.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -138,52 +140,20 @@ typedef void (*vl_log_fn)(void *user, vl_log_level_t level, int64_t utime, const
 /** Largest max_time_jump and max_imu_silence, s (their microseconds stay far inside int64). */
 #define VL_MAX_TIME_LIMIT 1e9
 
-/** Estimator configuration. Start from vl_config_default() or vl_config_preset_seed(). */
+/**
+ * Estimator configuration. Start from vl_config_default() or vl_config_preset_seed().
+ *
+ * The plain values come first: one member per row of VL_CONFIG_KEYS in
+ * vislam/vl_config_schema.h, in the table's order, named by its field column.
+ * The table gives each one's type, default, range, units and meaning.
+ */
 typedef struct {
-    vl_mode_t mode;                      /**< what to estimate */
-    int estimate_input_offsets;          /**< nonzero: estimate constant velocity offsets as states */
-
-    double linear_velocity_noise;   /**< m/s, std of each linear velocity sample */
-    double angular_velocity_noise;  /**< rad/s, std of each angular velocity sample */
-    double linear_offset_prior;     /**< m/s, initial std of the linear velocity offset */
-    double angular_offset_prior;    /**< rad/s, initial std of the angular velocity offset */
-    double linear_offset_walk;      /**< m/s/sqrt(s), random walk of the linear offset */
-    double angular_offset_walk;     /**< rad/s/sqrt(s), random walk of the angular offset */
-
-    double pixel_noise;             /**< px, std of each pixel coordinate */
-    double min_disparity;           /**< px, no landmark starts from a smaller disparity u_left - u_right */
-    double max_depth;               /**< m, no landmark starts farther than this */
-    double gate_chi2;               /**< chi-square (3 dof) gate on observations; 0 disables all outlier rejection */
-    double max_broken_fraction;     /**< a frame in which more than this fraction of tracked observations
-                                         fail the gate is a tracker re-association: all restart (0..1] */
-    uint32_t ransac_hypotheses;     /**< 1-point RANSAC hypotheses per frame; 0 gates each observation alone */
-    double ransac_threshold;        /**< px, residual a RANSAC hypothesis must leave for an observation to support it */
-    int adaptive_noise;             /**< nonzero: the noise values are priors, adapted online */
-    uint32_t max_update_observations; /**< most observations one update uses (a time bound); 0: all */
-
-    uint32_t max_landmarks;         /**< active window, 1..VL_MAX_LANDMARKS */
-    uint32_t max_unseen_frames;     /**< frames a landmark may go unobserved before it is marginalized */
-    uint32_t min_track_length;      /**< frames a track must span before admission (>= 1); from the
-                                         second frame on, admission also needs the new observation to
-                                         agree with the previous one (gate_chi2) */
-    double max_propagation_dt;      /**< s, longer gaps are counted (time_gaps) and still propagated */
-
-    /* Robustness limits (README "Robustness"). */
-    double max_time_jump;           /**< s, (0, 1e9]: an input this far from the clock, ahead or behind,
-                                         is a time jump: refused and counted (time_jumps) */
-    uint32_t new_timeline_samples;  /**< >= 2: this many consecutive time-refused inputs that follow
-                                         one another in time are a new timeline: re-initialize */
-    double max_speed;               /**< m/s, > 0: IMU samples with a faster linear velocity are refused */
-    double max_rotation_rate;       /**< rad/s, > 0: IMU samples turning faster are refused */
-    double image_width;             /**< px, >= 0: image width; 0 takes 2 cx */
-    double image_height;            /**< px, >= 0: image height; 0 takes 2 cy */
-    double image_margin;            /**< px, >= 0: pixels this far outside the image still count as inside */
-    double max_disparity;           /**< px, > 0: observations with a larger disparity are refused */
-    double max_imu_silence;         /**< s, (0, 1e9]: a held IMU velocity is used at most this long
-                                         after its sample; later frames are refused (degraded) */
-    uint32_t divergence_frames;     /**< frames in a row whose update failed (refused, or most
-                                         observations contradicting the state) before the SLAM
-                                         estimator counts as diverged and resets; 0: never */
+/** @cond */
+#define VL_CONFIG_MEMBER_(section, key, field, type, def, min, max, min_open, units, meaning) \
+    VL_CONFIG_CTYPE_##type field;
+    VL_CONFIG_KEYS(VL_CONFIG_MEMBER_)
+#undef VL_CONFIG_MEMBER_
+/** @endcond */
 
     vl_calibration_t calibration;   /**< stereo rig */
 
