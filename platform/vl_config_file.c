@@ -26,61 +26,56 @@ typedef struct {
     const char *section;
     const char *name;
     key_type_t type;
-    size_t offset;   /* into vl_config_t, for the value types */
-    double min;      /* inclusive unless min_open */
-    double max;      /* inclusive */
-    int min_open;    /* nonzero: value must be strictly greater than min */
-    int calibration; /* one of the six keys that make a complete calibration */
+    size_t offset;       /* into vl_config_t, for the value types */
+    double min;          /* inclusive unless min_open */
+    double max;          /* inclusive */
+    int min_open;        /* nonzero: value must be strictly greater than min */
+    int calibration;     /* one of the six keys that make a complete calibration */
+    const char *units;   /* "" when none */
+    const char *meaning; /* one paragraph, for the annotated writer */
+    const char *example; /* calibration and preset: the value tools/vislam.ini shows */
 } key_def_t;
 
 #define CFG_OFF(member) offsetof(vl_config_t, member)
 
-/* Ranges mirror vl_config_check so that a bad value is reported with its key and line. */
+/* A row of the schema (vislam/vl_config_schema.h) as a key of this reader and writer. */
+#define SCHEMA_KEY(section_, key_, field_, type_, def_, min_, max_, min_open_, units_, meaning_)               \
+    {.section = section_, .name = key_, .type = KEY_##type_, .offset = CFG_OFF(field_),                          \
+     .min = (double)(min_), .max = (double)(max_), .min_open = min_open_, .units = units_, .meaning = meaning_},
+
+/* The schema's keys, plus the ones that are not plain values of vl_config_t: the preset
+   (applied before every other key) and the calibration (a rig, checked as a whole, that
+   normally comes from the log). Their texts live here because only the file has them. */
 static const key_def_t k_keys[] = {
-    {"estimator", "preset", KEY_PRESET, 0, 0, 0, 0, 0},
-    {"estimator", "mode", KEY_MODE, CFG_OFF(mode), 0, 0, 0, 0},
-    {"estimator", "estimate_input_offsets", KEY_BOOL, CFG_OFF(estimate_input_offsets), 0, 0, 0, 0},
-    {"estimator", "adaptive_noise", KEY_BOOL, CFG_OFF(adaptive_noise), 0, 0, 0, 0},
-    {"estimator", "max_propagation_dt", KEY_DOUBLE, CFG_OFF(max_propagation_dt), 0.0, DBL_MAX, 1, 0},
-    {"estimator", "max_update_observations", KEY_UINT32, CFG_OFF(max_update_observations), 0.0, (double)UINT32_MAX, 0, 0},
-
-    {"noise", "linear_velocity", KEY_DOUBLE, CFG_OFF(linear_velocity_noise), 0.0, DBL_MAX, 1, 0},
-    {"noise", "angular_velocity", KEY_DOUBLE, CFG_OFF(angular_velocity_noise), 0.0, DBL_MAX, 1, 0},
-    {"noise", "linear_offset_prior", KEY_DOUBLE, CFG_OFF(linear_offset_prior), 0.0, DBL_MAX, 0, 0},
-    {"noise", "angular_offset_prior", KEY_DOUBLE, CFG_OFF(angular_offset_prior), 0.0, DBL_MAX, 0, 0},
-    {"noise", "linear_offset_walk", KEY_DOUBLE, CFG_OFF(linear_offset_walk), 0.0, DBL_MAX, 0, 0},
-    {"noise", "angular_offset_walk", KEY_DOUBLE, CFG_OFF(angular_offset_walk), 0.0, DBL_MAX, 0, 0},
-    {"noise", "pixel", KEY_DOUBLE, CFG_OFF(pixel_noise), 0.0, DBL_MAX, 1, 0},
-
-    {"landmarks", "max_landmarks", KEY_UINT32, CFG_OFF(max_landmarks), 1.0, (double)VL_MAX_LANDMARKS, 0, 0},
-    {"landmarks", "max_unseen_frames", KEY_UINT32, CFG_OFF(max_unseen_frames), 0.0, (double)UINT32_MAX, 0, 0},
-    {"landmarks", "min_disparity", KEY_DOUBLE, CFG_OFF(min_disparity), 0.0, DBL_MAX, 1, 0},
-    {"landmarks", "max_depth", KEY_DOUBLE, CFG_OFF(max_depth), 0.0, DBL_MAX, 1, 0},
-    {"landmarks", "min_track_length", KEY_UINT32, CFG_OFF(min_track_length), 1.0, (double)UINT32_MAX, 0, 0},
-
-    {"outliers", "gate_chi2", KEY_DOUBLE, CFG_OFF(gate_chi2), 0.0, DBL_MAX, 0, 0},
-    {"outliers", "max_broken_fraction", KEY_DOUBLE, CFG_OFF(max_broken_fraction), 0.0, 1.0, 1, 0},
-    {"outliers", "ransac_hypotheses", KEY_UINT32, CFG_OFF(ransac_hypotheses), 0.0, 4096.0, 0, 0},
-    {"outliers", "ransac_threshold", KEY_DOUBLE, CFG_OFF(ransac_threshold), 0.0, DBL_MAX, 1, 0},
-
-    {"limits", "max_time_jump", KEY_DOUBLE, CFG_OFF(max_time_jump), 0.0, VL_MAX_TIME_LIMIT, 1, 0},
-    {"limits", "new_timeline_samples", KEY_UINT32, CFG_OFF(new_timeline_samples), 2.0, (double)UINT32_MAX, 0, 0},
-    {"limits", "max_speed", KEY_DOUBLE, CFG_OFF(max_speed), 0.0, DBL_MAX, 1, 0},
-    {"limits", "max_rotation_rate", KEY_DOUBLE, CFG_OFF(max_rotation_rate), 0.0, DBL_MAX, 1, 0},
-    {"limits", "image_width", KEY_DOUBLE, CFG_OFF(image_width), 0.0, DBL_MAX, 0, 0},
-    {"limits", "image_height", KEY_DOUBLE, CFG_OFF(image_height), 0.0, DBL_MAX, 0, 0},
-    {"limits", "image_margin", KEY_DOUBLE, CFG_OFF(image_margin), 0.0, DBL_MAX, 0, 0},
-    {"limits", "max_disparity", KEY_DOUBLE, CFG_OFF(max_disparity), 0.0, DBL_MAX, 1, 0},
-    {"limits", "max_imu_silence", KEY_DOUBLE, CFG_OFF(max_imu_silence), 0.0, VL_MAX_TIME_LIMIT, 1, 0},
-    {"limits", "divergence_frames", KEY_UINT32, CFG_OFF(divergence_frames), 0.0, (double)UINT32_MAX, 0, 0},
-
-    {"calibration", "override_log", KEY_OVERRIDE, 0, 0, 0, 0, 0},
-    {"calibration", "fx", KEY_DOUBLE, CFG_OFF(calibration.fx), 0.0, DBL_MAX, 1, 1},
-    {"calibration", "fy", KEY_DOUBLE, CFG_OFF(calibration.fy), 0.0, DBL_MAX, 1, 1},
-    {"calibration", "cx", KEY_DOUBLE, CFG_OFF(calibration.cx), -DBL_MAX, DBL_MAX, 0, 1},
-    {"calibration", "cy", KEY_DOUBLE, CFG_OFF(calibration.cy), -DBL_MAX, DBL_MAX, 0, 1},
-    {"calibration", "baseline", KEY_DOUBLE, CFG_OFF(calibration.baseline), 0.0, DBL_MAX, 1, 1},
-    {"calibration", "cam_T_imu", KEY_CAM_T_IMU, CFG_OFF(calibration.cam_T_imu), 0, 0, 0, 1},
+    {.section = "estimator", .name = "preset", .type = KEY_PRESET, .units = "", .example = "default",
+     .meaning = "Tuning preset applied FIRST, wherever this line appears; the other keys of the file then "
+                "change it. default = the tuned defaults listed here; seed = the seed project's noise "
+                "(W = diag(1e-5 I3, 1e-4 I3) per 0.1 s step, V = 3500 I4), no offset states, no outlier "
+                "rejection. A preset keeps the calibration. Leave the key out to start from whatever the "
+                "program gives (vislam-run: the defaults, or --preset)."},
+    VL_CONFIG_KEYS(SCHEMA_KEY)
+    {.section = "calibration", .name = "override_log", .type = KEY_OVERRIDE, .units = "", .example = "false",
+     .meaning = "true: use this section even when the log carries a calibration."},
+    {.section = "calibration", .name = "fx", .type = KEY_DOUBLE, .offset = CFG_OFF(calibration.fx), .max = DBL_MAX,
+     .min_open = 1, .calibration = 1, .units = "px", .example = "700", .meaning = "Horizontal focal length."},
+    {.section = "calibration", .name = "fy", .type = KEY_DOUBLE, .offset = CFG_OFF(calibration.fy), .max = DBL_MAX,
+     .min_open = 1, .calibration = 1, .units = "px", .example = "700", .meaning = "Vertical focal length."},
+    {.section = "calibration", .name = "cx", .type = KEY_DOUBLE, .offset = CFG_OFF(calibration.cx), .min = -DBL_MAX,
+     .max = DBL_MAX, .calibration = 1, .units = "px", .example = "600",
+     .meaning = "Principal point, horizontal."},
+    {.section = "calibration", .name = "cy", .type = KEY_DOUBLE, .offset = CFG_OFF(calibration.cy), .min = -DBL_MAX,
+     .max = DBL_MAX, .calibration = 1, .units = "px", .example = "180", .meaning = "Principal point, vertical."},
+    {.section = "calibration", .name = "baseline", .type = KEY_DOUBLE, .offset = CFG_OFF(calibration.baseline),
+     .max = DBL_MAX, .min_open = 1, .calibration = 1, .units = "m", .example = "0.5", .meaning = "Stereo baseline."},
+    {.section = "calibration", .name = "cam_T_imu", .type = KEY_CAM_T_IMU, .offset = CFG_OFF(calibration.cam_T_imu),
+     .calibration = 1, .units = "",
+     .example = "0 -1  0 0\n"
+                "0  0 -1 0\n"
+                "1  0  0 0\n"
+                "0  0  0 1",
+     .meaning = "4x4 row-major transform from the IMU frame to the left camera optical frame (x right, y "
+                "down, z forward): 16 numbers separated by spaces or commas; the rows may continue on "
+                "indented lines. Must be rigid (orthonormal rotation, det +1, last row 0 0 0 1)."},
 };
 
 #define NUM_KEYS (sizeof(k_keys) / sizeof(k_keys[0]))
@@ -674,60 +669,236 @@ void vl_config_apply_preset(vl_config_t *cfg, vl_preset_t preset)
     *cfg = fresh;
 }
 
-int vl_config_write_ini(FILE *f, const vl_config_t *cfg, int with_calibration)
+/* The fewest significant digits (15, 16 or 17) that read back to the same double. */
+static void format_double(char *buf, size_t len, double v)
+{
+    for (int digits = 15; digits < 17; ++digits) {
+        snprintf(buf, len, "%.*g", digits, v);
+        if (strtod(buf, NULL) == v) {
+            return;
+        }
+    }
+    snprintf(buf, len, "%.17g", v);
+}
+
+/* The value of a single-valued key in cfg as the reader takes it; the preset's and
+   override_log's, which cfg does not hold, as the example shows them. */
+static void format_value(char *buf, size_t len, const key_def_t *k, const vl_config_t *cfg)
+{
+    const char *member = (const char *)cfg + k->offset;
+    switch (k->type) {
+    case KEY_DOUBLE:
+        format_double(buf, len, *(const double *)member);
+        return;
+    case KEY_UINT32:
+        snprintf(buf, len, "%u", (unsigned)*(const uint32_t *)member);
+        return;
+    case KEY_BOOL:
+        snprintf(buf, len, "%s", *(const int *)member ? "true" : "false");
+        return;
+    case KEY_MODE:
+        snprintf(buf, len, "%s", vl_mode_name(*(const vl_mode_t *)member));
+        return;
+    case KEY_PRESET:
+    case KEY_OVERRIDE:
+    case KEY_CAM_T_IMU:
+        break;
+    }
+    snprintf(buf, len, "%s", k->example != NULL ? k->example : "");
+}
+
+/* A key's units and range, and its default for the schema keys: "m/s, > 0, default 0.5". */
+static void format_attributes(char *buf, size_t len, const key_def_t *k)
+{
+    char lo[32], hi[32], range[96];
+    format_double(lo, sizeof(lo), k->min);
+    format_double(hi, sizeof(hi), k->max);
+    switch (k->type) {
+    case KEY_DOUBLE:
+        if (k->min == -DBL_MAX && k->max == DBL_MAX) {
+            snprintf(range, sizeof(range), "any number");
+        } else if (k->max == DBL_MAX) {
+            snprintf(range, sizeof(range), "%s %s", k->min_open ? ">" : ">=", lo);
+        } else {
+            snprintf(range, sizeof(range), "%s %s and <= %s", k->min_open ? ">" : ">=", lo, hi);
+        }
+        break;
+    case KEY_UINT32:
+        if (k->max == (double)UINT32_MAX) {
+            snprintf(range, sizeof(range), "integer >= %s", lo);
+        } else {
+            snprintf(range, sizeof(range), "integer %s..%s", lo, hi);
+        }
+        break;
+    case KEY_BOOL:
+    case KEY_OVERRIDE:
+        snprintf(range, sizeof(range), "true or false");
+        break;
+    case KEY_MODE:
+        snprintf(range, sizeof(range), "imu_only, mapping or slam");
+        break;
+    case KEY_PRESET:
+        snprintf(range, sizeof(range), "default or seed");
+        break;
+    case KEY_CAM_T_IMU:
+        snprintf(range, sizeof(range), "16 numbers");
+        break;
+    }
+    char def[48] = "";
+    const int from_schema = k->type == KEY_DOUBLE || k->type == KEY_UINT32 || k->type == KEY_BOOL || k->type == KEY_MODE;
+    if (from_schema && !k->calibration) {
+        vl_config_t d;
+        vl_config_default(&d);
+        char value[32];
+        format_value(value, sizeof(value), k, &d);
+        snprintf(def, sizeof(def), ", default %s", value);
+    }
+    snprintf(buf, len, "%s%s%s%s", k->units, k->units[0] != '\0' ? ", " : "", range, def);
+}
+
+/* Writes text as ';' comment lines of at most 80 characters, broken between words. */
+static void write_comment(FILE *f, const char *text)
+{
+    const int width = 80 - 2;
+    const char *p = text;
+    while (*p != '\0') {
+        int used = 0;
+        fputs(";", f);
+        while (*p != '\0') {
+            size_t word = strcspn(p, " ");
+            if (used > 0 && used + 1 + (int)word > width) {
+                break;
+            }
+            fprintf(f, " %.*s", (int)word, p);
+            used += 1 + (int)word;
+            p += word;
+            while (*p == ' ') {
+                ++p;
+            }
+        }
+        fputs("\n", f);
+    }
+}
+
+typedef enum {
+    WRITE_PLAIN,     /* keys and values only */
+    WRITE_ANNOTATED, /* each key after its meaning, units, range and default */
+    WRITE_EXAMPLE    /* annotated, with the preset and an illustrative, commented-out [calibration] */
+} write_style_t;
+
+/* Section comments of the annotated file, for the sections that need one. */
+static const char *section_comment(const char *section, write_style_t style)
+{
+    if (strcmp(section, "limits") == 0) {
+        return "Robustness (README \"Robustness\"): inputs beyond these are refused and counted, and the "
+               "estimator re-initializes when its inputs or its own state say it must. The defaults refuse "
+               "nothing on clean data.";
+    }
+    if (strcmp(section, "calibration") == 0) {
+        return style == WRITE_EXAMPLE ? "Stereo rig. Normally it comes from the log's VISLAM_CALIB message and this "
+               "section is left out. When given, all six values are required (fx fy cx cy baseline cam_T_imu); "
+               "the log's calibration still wins unless override_log = true. The numbers below are only an "
+               "illustration, not a real rig."
+               : "Stereo rig. When given, all six values are required (fx fy cx cy baseline cam_T_imu); the "
+               "log's calibration still wins unless override_log = true.";
+    }
+    return NULL;
+}
+
+static int write_ini(FILE *f, const vl_config_t *cfg, int with_calibration, write_style_t style)
 {
     if (f == NULL || cfg == NULL) {
         return -1;
     }
-    fprintf(f, "[estimator]\n");
-    fprintf(f, "mode = %s\n", vl_mode_name(cfg->mode));
-    fprintf(f, "estimate_input_offsets = %s\n", cfg->estimate_input_offsets ? "true" : "false");
-    fprintf(f, "adaptive_noise = %s\n", cfg->adaptive_noise ? "true" : "false");
-    fprintf(f, "max_propagation_dt = %.17g\n", cfg->max_propagation_dt);
-    fprintf(f, "max_update_observations = %u\n", (unsigned)cfg->max_update_observations);
-    fprintf(f, "\n[noise]\n");
-    fprintf(f, "linear_velocity = %.17g\n", cfg->linear_velocity_noise);
-    fprintf(f, "angular_velocity = %.17g\n", cfg->angular_velocity_noise);
-    fprintf(f, "linear_offset_prior = %.17g\n", cfg->linear_offset_prior);
-    fprintf(f, "angular_offset_prior = %.17g\n", cfg->angular_offset_prior);
-    fprintf(f, "linear_offset_walk = %.17g\n", cfg->linear_offset_walk);
-    fprintf(f, "angular_offset_walk = %.17g\n", cfg->angular_offset_walk);
-    fprintf(f, "pixel = %.17g\n", cfg->pixel_noise);
-    fprintf(f, "\n[landmarks]\n");
-    fprintf(f, "max_landmarks = %u\n", (unsigned)cfg->max_landmarks);
-    fprintf(f, "max_unseen_frames = %u\n", (unsigned)cfg->max_unseen_frames);
-    fprintf(f, "min_disparity = %.17g\n", cfg->min_disparity);
-    fprintf(f, "max_depth = %.17g\n", cfg->max_depth);
-    fprintf(f, "min_track_length = %u\n", (unsigned)cfg->min_track_length);
-    fprintf(f, "\n[outliers]\n");
-    fprintf(f, "gate_chi2 = %.17g\n", cfg->gate_chi2);
-    fprintf(f, "max_broken_fraction = %.17g\n", cfg->max_broken_fraction);
-    fprintf(f, "ransac_hypotheses = %u\n", (unsigned)cfg->ransac_hypotheses);
-    fprintf(f, "ransac_threshold = %.17g\n", cfg->ransac_threshold);
-    fprintf(f, "\n[limits]\n");
-    fprintf(f, "max_time_jump = %.17g\n", cfg->max_time_jump);
-    fprintf(f, "new_timeline_samples = %u\n", (unsigned)cfg->new_timeline_samples);
-    fprintf(f, "max_speed = %.17g\n", cfg->max_speed);
-    fprintf(f, "max_rotation_rate = %.17g\n", cfg->max_rotation_rate);
-    fprintf(f, "image_width = %.17g\n", cfg->image_width);
-    fprintf(f, "image_height = %.17g\n", cfg->image_height);
-    fprintf(f, "image_margin = %.17g\n", cfg->image_margin);
-    fprintf(f, "max_disparity = %.17g\n", cfg->max_disparity);
-    fprintf(f, "max_imu_silence = %.17g\n", cfg->max_imu_silence);
-    fprintf(f, "divergence_frames = %u\n", (unsigned)cfg->divergence_frames);
-    if (with_calibration) {
-        const vl_calibration_t *c = &cfg->calibration;
-        fprintf(f, "\n[calibration]\n");
-        fprintf(f, "fx = %.17g\n", c->fx);
-        fprintf(f, "fy = %.17g\n", c->fy);
-        fprintf(f, "cx = %.17g\n", c->cx);
-        fprintf(f, "cy = %.17g\n", c->cy);
-        fprintf(f, "baseline = %.17g\n", c->baseline);
-        /* One row per line keeps each line under inih's 200-character limit. */
-        for (int r = 0; r < 4; ++r) {
-            fprintf(f, "%s%.17g %.17g %.17g %.17g\n", r == 0 ? "cam_T_imu = " : "            ",
-                    c->cam_T_imu[4 * r], c->cam_T_imu[4 * r + 1], c->cam_T_imu[4 * r + 2], c->cam_T_imu[4 * r + 3]);
+    const char *section = NULL;
+    for (size_t i = 0; i < NUM_KEYS; ++i) {
+        const key_def_t *k = &k_keys[i];
+        const int is_calibration = strcmp(k->section, "calibration") == 0;
+        const int commented = style == WRITE_EXAMPLE && is_calibration;
+        if ((is_calibration && !with_calibration && style != WRITE_EXAMPLE) ||
+            ((k->type == KEY_PRESET || k->type == KEY_OVERRIDE) && style != WRITE_EXAMPLE)) {
+            continue;
+        }
+        const int new_section = section == NULL || strcmp(section, k->section) != 0;
+        if (new_section) {
+            fprintf(f, "%s[%s]\n", section == NULL ? "" : "\n", k->section);
+            section = k->section;
+            if (style != WRITE_PLAIN && section_comment(section, style) != NULL) {
+                write_comment(f, section_comment(section, style));
+                fputs(commented ? ";\n" : "\n", f);
+            }
+        }
+        if (style != WRITE_PLAIN) {
+            char attributes[160];
+            format_attributes(attributes, sizeof(attributes), k);
+            if (!new_section) {
+                fputs(commented ? ";\n" : "\n", f);
+            }
+            write_comment(f, k->meaning);
+            fprintf(f, "; %s\n", attributes);
+        }
+        const char *lead = commented ? "; " : "";
+        if (k->type == KEY_CAM_T_IMU && !commented) {
+            /* One row per line keeps each line under inih's 200-character limit. */
+            const double *m = (const double *)((const char *)cfg + k->offset);
+            for (int r = 0; r < 4; ++r) {
+                fprintf(f, "%s", r == 0 ? "cam_T_imu =" : "           ");
+                for (int c = 0; c < 4; ++c) {
+                    char number[32];
+                    format_double(number, sizeof(number), m[4 * r + c]);
+                    fprintf(f, " %s", number);
+                }
+                fputs("\n", f);
+            }
+        } else if (k->type == KEY_CAM_T_IMU) {
+            const char *row = k->example;
+            for (int r = 0; *row != '\0'; ++r) {
+                size_t n = strcspn(row, "\n");
+                fprintf(f, "%s%s %.*s\n", lead, r == 0 ? "cam_T_imu =" : "           ", (int)n, row);
+                row += n + (row[n] == '\n');
+            }
+        } else if (commented || k->type == KEY_PRESET || k->type == KEY_OVERRIDE) {
+            fprintf(f, "%s%s = %s\n", lead, k->name, k->example);
+        } else {
+            char value[48];
+            format_value(value, sizeof(value), k, cfg);
+            fprintf(f, "%s = %s\n", k->name, value);
         }
     }
     return ferror(f) ? -1 : 0;
+}
+
+int vl_config_write_ini(FILE *f, const vl_config_t *cfg, int with_calibration)
+{
+    return write_ini(f, cfg, with_calibration, WRITE_PLAIN);
+}
+
+int vl_config_write_ini_annotated(FILE *f, const vl_config_t *cfg, int with_calibration)
+{
+    return write_ini(f, cfg, with_calibration, WRITE_ANNOTATED);
+}
+
+int vl_config_write_example(FILE *f)
+{
+    if (f == NULL) {
+        return -1;
+    }
+    write_comment(f, "vislam configuration: every key, set to its default (vl_config_default).");
+    fputs(";\n", f);
+    write_comment(f, "Generated from the schema in core/include/vislam/vl_config_schema.h by "
+                     "vl_config_write_example(): do not edit by hand. After changing the schema, "
+                     "regenerate it with");
+    fputs(";   build/bin/test_config_file --write-example tools/vislam.ini\n", f);
+    write_comment(f, "(test_config_file fails while this file differs from what the schema gives).");
+    fputs(";\n", f);
+    write_comment(f, "Used by vislam-run --config FILE and vislamd --config FILE. The file is applied on top "
+                     "of the defaults; any key may be left out. Parsing is strict: an unknown section or key, "
+                     "a repeated key, a number that does not parse completely, or an out-of-range value stops "
+                     "the program with \"FILE:LINE: [section] key: reason\". Comments start with ; or # at "
+                     "the start of a line, or \" ;\" after a value. Lines are limited to 197 characters "
+                     "(libinih). Each key follows its meaning, then its units, range and default.");
+    fputs("\n", f);
+    vl_config_t cfg;
+    vl_config_default(&cfg);
+    return write_ini(f, &cfg, 1, WRITE_EXAMPLE);
 }

@@ -3,7 +3,9 @@
  * @brief Loads an estimator configuration from an INI file (libinih).
  *
  * The file is applied on top of whatever the configuration already holds
- * (start from vl_config_default). Every key is documented in tools/vislam.ini.
+ * (start from vl_config_default). The keys are the rows of VL_CONFIG_KEYS
+ * (vislam/vl_config_schema.h) plus [estimator] preset and [calibration];
+ * tools/vislam.ini, written by vl_config_write_example, documents each one.
  * Parsing is strict: an unknown section or key, a repeated key, a value that
  * does not parse completely or is out of range gives VL_ERR_CONFIG and a
  * message "FILE:LINE: [section] key: reason", and leaves the caller's
@@ -55,11 +57,26 @@ vl_status_t vl_config_load_ini_ex(const char *path, vl_config_t *cfg, vl_config_
 
 /**
  * Writes @p cfg as an INI file that vl_config_load_ini reads back to the same
- * values (numbers with 17 significant digits). Callbacks are not written.
+ * values: keys in the schema's order, numbers with the fewest significant
+ * digits (15, 16 or 17) that read back to the same double. Callbacks are not written.
  * @param with_calibration nonzero to include the [calibration] section
  * @return 0, or -1 on a write error
  */
 int vl_config_write_ini(FILE *f, const vl_config_t *cfg, int with_calibration);
+
+/**
+ * As vl_config_write_ini, with each key preceded by comments: its meaning,
+ * then its units, range and default.
+ */
+int vl_config_write_ini_annotated(FILE *f, const vl_config_t *cfg, int with_calibration);
+
+/**
+ * Writes tools/vislam.ini: every key annotated and set to its default, the
+ * preset line, and an illustrative [calibration] commented out. A test compares
+ * the committed file with this output byte for byte.
+ * @return 0, or -1 on a write error
+ */
+int vl_config_write_example(FILE *f);
 
 /** "imu_only", "mapping", "slam", or "?" */
 const char *vl_mode_name(vl_mode_t mode);

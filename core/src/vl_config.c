@@ -2,6 +2,7 @@
 #include "vislam/vislam.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <string.h>
 
 /* Identity rotation part of a 4x4, used until a calibration arrives. */
@@ -13,48 +14,11 @@ void vl_config_default(vl_config_t *cfg)
         return;
     }
     memset(cfg, 0, sizeof(*cfg));
-    cfg->mode = VL_MODE_SLAM;
-    cfg->estimate_input_offsets = 1;
-
-    /* The seed data's velocities carry about 0.5 m/s and 0.05 rad/s of noise per
-     * sample (shared/data/README.md): model that, do not hide it. */
-    cfg->linear_velocity_noise = 0.5;
-    cfg->angular_velocity_noise = 0.05;
-    cfg->linear_offset_prior = 0.1;
-    cfg->angular_offset_prior = 0.01;
-    cfg->linear_offset_walk = 1e-3;
-    cfg->angular_offset_walk = 1e-4;
-
-    cfg->pixel_noise = 1.5;
-    cfg->min_disparity = 1.0;
-    cfg->max_depth = 150.0;
-    cfg->gate_chi2 = 11.34; /* chi-square, 3 dof, 0.99 */
-    cfg->max_broken_fraction = 0.3;
-    cfg->ransac_hypotheses = 32;
-    cfg->ransac_threshold = 3.0;
-    /* 64 observations (192 rows) keep an update at a full window of 128 under
-     * 2 ms at p99.9 on 0034 here, for a few decimetres of ATE on 0027 (README). */
-    cfg->max_update_observations = 64;
-    cfg->adaptive_noise = 1;
-
-    cfg->max_landmarks = VL_MAX_LANDMARKS;
-    cfg->min_track_length = 2;
-    cfg->max_unseen_frames = 0; /* the seed's tracks have no gaps: an unseen track has ended */
-    cfg->max_propagation_dt = 0.5;
-
-    /* Robustness limits: far outside anything a clean drive shows (the seed drives:
-     * steps of 0.1 s, at most 16 m/s and 0.8 rad/s, disparities up to 190 px, pixels
-     * up to 30 px beyond 2 cx and 2 cy), so clean data is never refused. */
-    cfg->max_time_jump = 10.0;
-    cfg->new_timeline_samples = 5;   /* at 10 Hz IMU and camera: a new timeline within 0.3 s */
-    cfg->max_speed = 100.0;          /* 360 km/h */
-    cfg->max_rotation_rate = 35.0;   /* 2000 deg/s, a common gyro full scale */
-    cfg->image_width = 0.0;          /* 2 cx */
-    cfg->image_height = 0.0;         /* 2 cy */
-    cfg->image_margin = 64.0;
-    cfg->max_disparity = 400.0;      /* about 1 m away on the KITTI rig (fx b = 380 px m) */
-    cfg->max_imu_silence = 0.5;      /* five missed samples at 10 Hz */
-    cfg->divergence_frames = 20;     /* 2 s at 10 Hz */
+    /* Every plain value from its row of the schema (the reasons for the values are there). */
+#define VL_CONFIG_SET_DEFAULT_(section, key, field, type, def, min, max, min_open, units, meaning) \
+    cfg->field = (def);
+    VL_CONFIG_KEYS(VL_CONFIG_SET_DEFAULT_)
+#undef VL_CONFIG_SET_DEFAULT_
 
     memcpy(cfg->calibration.cam_T_imu, identity4, sizeof(identity4));
 }
@@ -86,9 +50,16 @@ static int positive_finite(double x)
     return isfinite(x) && x > 0.0;
 }
 
-static int non_negative_finite(double x)
+/* One value against its schema row's range; doubles must also be finite. */
+static int in_range(vl_config_type_t type, double v, double min, double max, int min_open)
 {
-    return isfinite(x) && x >= 0.0;
+    if (type == VL_CONFIG_BOOL) {
+        return 1; /* any int is a truth value */
+    }
+    if (type == VL_CONFIG_DOUBLE && !isfinite(v)) {
+        return 0;
+    }
+    return (min_open ? v > min : v >= min) && v <= max;
 }
 
 vl_status_t vl_config_check(const vl_config_t *cfg)
@@ -96,42 +67,18 @@ vl_status_t vl_config_check(const vl_config_t *cfg)
     if (cfg == NULL) {
         return VL_ERR_NULL;
     }
-    if (cfg->mode != VL_MODE_IMU_ONLY && cfg->mode != VL_MODE_MAPPING && cfg->mode != VL_MODE_SLAM) {
-        return VL_ERR_CONFIG;
+    /* Every plain value against its schema row. A RANSAC threshold is unused while RANSAC is
+       off (ransac_hypotheses = 0), so it is only checked with hypotheses to use it: the one
+       range that depends on another value. */
+#define VL_CONFIG_CHECK_KEY_(section, key, field, type, def, min, max, min_open, units, meaning)               \
+    if (!in_range(VL_CONFIG_##type, (double)cfg->field, (double)(min), (double)(max), (min_open)) &&           \
+        !(offsetof(vl_config_t, field) == offsetof(vl_config_t, ransac_threshold) &&                           \
+          cfg->ransac_hypotheses == 0)) {                                                                       \
+        return VL_ERR_CONFIG;                                                                                  \
     }
-    if (!positive_finite(cfg->linear_velocity_noise) || !positive_finite(cfg->angular_velocity_noise) ||
-        !positive_finite(cfg->pixel_noise)) {
-        return VL_ERR_CONFIG;
-    }
-    if (!non_negative_finite(cfg->linear_offset_prior) || !non_negative_finite(cfg->angular_offset_prior) ||
-        !non_negative_finite(cfg->linear_offset_walk) || !non_negative_finite(cfg->angular_offset_walk)) {
-        return VL_ERR_CONFIG;
-    }
-    if (cfg->ransac_hypotheses > 0 && !positive_finite(cfg->ransac_threshold)) {
-        return VL_ERR_CONFIG;
-    }
-    if (!positive_finite(cfg->min_disparity) || !positive_finite(cfg->max_depth) ||
-        !non_negative_finite(cfg->gate_chi2) || !positive_finite(cfg->max_propagation_dt)) {
-        return VL_ERR_CONFIG;
-    }
-    if (cfg->min_track_length < 1 || cfg->ransac_hypotheses > 4096 || !(cfg->max_broken_fraction > 0.0) ||
-        !(cfg->max_broken_fraction <= 1.0)) {
-        return VL_ERR_CONFIG;
-    }
-    if (cfg->max_landmarks < 1 || cfg->max_landmarks > VL_MAX_LANDMARKS) {
-        return VL_ERR_CONFIG;
-    }
-    /* Time limits become int64 microseconds: 1e9 s keeps them far inside the range. */
-    if (!positive_finite(cfg->max_time_jump) || !(cfg->max_time_jump <= VL_MAX_TIME_LIMIT) ||
-        !positive_finite(cfg->max_imu_silence) || !(cfg->max_imu_silence <= VL_MAX_TIME_LIMIT) ||
-        cfg->new_timeline_samples < 2) {
-        return VL_ERR_CONFIG;
-    }
-    if (!positive_finite(cfg->max_speed) || !positive_finite(cfg->max_rotation_rate) ||
-        !non_negative_finite(cfg->image_width) || !non_negative_finite(cfg->image_height) ||
-        !non_negative_finite(cfg->image_margin) || !positive_finite(cfg->max_disparity)) {
-        return VL_ERR_CONFIG;
-    }
+    VL_CONFIG_KEYS(VL_CONFIG_CHECK_KEY_)
+#undef VL_CONFIG_CHECK_KEY_
+
     const vl_calibration_t *cal = &cfg->calibration;
     if (!positive_finite(cal->fx) || !positive_finite(cal->fy) || !isfinite(cal->cx) || !isfinite(cal->cy) ||
         !positive_finite(cal->baseline)) {

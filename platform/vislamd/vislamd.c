@@ -76,6 +76,7 @@ typedef struct {
     int cpu;          /* -1: no affinity */
     int no_mlock;
     int quiet;
+    int print_config;
 } options_t;
 
 enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_COUNT };
@@ -195,6 +196,7 @@ static void usage(FILE *f)
             "  --status-channel NAME   default VISLAM_STATUS\n"
             "  --quiet                 only warnings and errors on stderr (no periodic status line, no\n"
             "                          exit summary)\n"
+            "  --print-config          print the effective configuration (INI, as vislam-run) and exit\n"
             "  --help                  this text\n"
             "\n"
             "Exit status: 0 stopped by SIGINT/SIGTERM with every output flushed, 1 run-time failure\n"
@@ -246,6 +248,9 @@ static int parse_args(int argc, char **argv, options_t *o)
             continue;
         } else if (strcmp(a, "--no-mlock") == 0) {
             o->no_mlock = 1;
+            continue;
+        } else if (strcmp(a, "--print-config") == 0) {
+            o->print_config = 1;
             continue;
         }
         if (a[0] != '-' || a[1] != '-') {
@@ -864,6 +869,9 @@ int main(int argc, char **argv)
     daemon_t *d = &g;
     if (parse_args(argc, argv, &d->opt) != 0 || make_channels(d) != 0 || load_config(d) != 0) {
         return EXIT_USAGE;
+    }
+    if (d->opt.print_config) {
+        return vl_config_write_ini(stdout, &d->cfg, d->info.has_calibration) == 0 ? 0 : EXIT_RUNTIME;
     }
     d->calib_source = "none";
     d->budget_us = d->opt.budget_us > 0 ? d->opt.budget_us : DEFAULT_BUDGET_US;

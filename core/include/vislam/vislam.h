@@ -26,6 +26,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "vislam/vl_config_schema.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -138,52 +140,20 @@ typedef void (*vl_log_fn)(void *user, vl_log_level_t level, int64_t utime, const
 /** Largest max_time_jump and max_imu_silence, s (their microseconds stay far inside int64). */
 #define VL_MAX_TIME_LIMIT 1e9
 
-/** Estimator configuration. Start from vl_config_default() or vl_config_preset_seed(). */
+/**
+ * Estimator configuration. Start from vl_config_default() or vl_config_preset_seed().
+ *
+ * The plain values come first: one member per row of VL_CONFIG_KEYS in
+ * vislam/vl_config_schema.h, in the table's order, named by its field column.
+ * The table gives each one's type, default, range, units and meaning.
+ */
 typedef struct {
-    vl_mode_t mode;                      /**< what to estimate */
-    int estimate_input_offsets;          /**< nonzero: estimate constant velocity offsets as states */
-
-    double linear_velocity_noise;   /**< m/s, std of each linear velocity sample */
-    double angular_velocity_noise;  /**< rad/s, std of each angular velocity sample */
-    double linear_offset_prior;     /**< m/s, initial std of the linear velocity offset */
-    double angular_offset_prior;    /**< rad/s, initial std of the angular velocity offset */
-    double linear_offset_walk;      /**< m/s/sqrt(s), random walk of the linear offset */
-    double angular_offset_walk;     /**< rad/s/sqrt(s), random walk of the angular offset */
-
-    double pixel_noise;             /**< px, std of each pixel coordinate */
-    double min_disparity;           /**< px, no landmark starts from a smaller disparity u_left - u_right */
-    double max_depth;               /**< m, no landmark starts farther than this */
-    double gate_chi2;               /**< chi-square (3 dof) gate on observations; 0 disables all outlier rejection */
-    double max_broken_fraction;     /**< a frame in which more than this fraction of tracked observations
-                                         fail the gate is a tracker re-association: all restart (0..1] */
-    uint32_t ransac_hypotheses;     /**< 1-point RANSAC hypotheses per frame; 0 gates each observation alone */
-    double ransac_threshold;        /**< px, residual a RANSAC hypothesis must leave for an observation to support it */
-    int adaptive_noise;             /**< nonzero: the noise values are priors, adapted online */
-    uint32_t max_update_observations; /**< most observations one update uses (a time bound); 0: all */
-
-    uint32_t max_landmarks;         /**< active window, 1..VL_MAX_LANDMARKS */
-    uint32_t max_unseen_frames;     /**< frames a landmark may go unobserved before it is marginalized */
-    uint32_t min_track_length;      /**< frames a track must span before admission (>= 1); from the
-                                         second frame on, admission also needs the new observation to
-                                         agree with the previous one (gate_chi2) */
-    double max_propagation_dt;      /**< s, longer gaps are counted (time_gaps) and still propagated */
-
-    /* Robustness limits (README "Robustness"). */
-    double max_time_jump;           /**< s, (0, 1e9]: an input this far from the clock, ahead or behind,
-                                         is a time jump: refused and counted (time_jumps) */
-    uint32_t new_timeline_samples;  /**< >= 2: this many consecutive time-refused inputs that follow
-                                         one another in time are a new timeline: re-initialize */
-    double max_speed;               /**< m/s, > 0: IMU samples with a faster linear velocity are refused */
-    double max_rotation_rate;       /**< rad/s, > 0: IMU samples turning faster are refused */
-    double image_width;             /**< px, >= 0: image width; 0 takes 2 cx */
-    double image_height;            /**< px, >= 0: image height; 0 takes 2 cy */
-    double image_margin;            /**< px, >= 0: pixels this far outside the image still count as inside */
-    double max_disparity;           /**< px, > 0: observations with a larger disparity are refused */
-    double max_imu_silence;         /**< s, (0, 1e9]: a held IMU velocity is used at most this long
-                                         after its sample; later frames are refused (degraded) */
-    uint32_t divergence_frames;     /**< frames in a row whose update failed (refused, or most
-                                         observations contradicting the state) before the SLAM
-                                         estimator counts as diverged and resets; 0: never */
+/** @cond */
+#define VL_CONFIG_MEMBER_(section, key, field, type, def, min, max, min_open, units, meaning) \
+    VL_CONFIG_CTYPE_##type field;
+    VL_CONFIG_KEYS(VL_CONFIG_MEMBER_)
+#undef VL_CONFIG_MEMBER_
+/** @endcond */
 
     vl_calibration_t calibration;   /**< stereo rig */
 
@@ -231,52 +201,67 @@ typedef struct {
     double pixel_noise;            /**< px, likewise */
 } vl_pose_t;
 
-/** Running counters; all monotonic since vl_init. */
+/**
+ * Every counter, in declaration order: X(type, name, meaning). vl_counters_t's
+ * members, VL_NUM_COUNTERS and vl_counters_list() all come from this list, so a
+ * new counter is one line here. All counters are monotonic since vl_init; the
+ * type is uint64_t or uint32_t (vl_counter_entry_t carries any of them).
+ */
+#define VL_COUNTERS(X) \
+    X(uint64_t, imu_accepted,               "IMU samples used") \
+    X(uint64_t, imu_rejected,               "IMU samples refused (non-finite, time order, time jump, implausible)") \
+    X(uint64_t, frames_accepted,            "frames used") \
+    X(uint64_t, frames_rejected,            "frames refused (time order, time jump, not ready, IMU silent)") \
+    X(uint64_t, frames_truncated,           "frames over VL_MAX_FRAME_FEATURES") \
+    X(uint64_t, observations_received,      "observations in accepted frames, before truncation") \
+    X(uint64_t, observations_truncated,     "observations dropped by truncation") \
+    X(uint64_t, observations_invalid,       "non-finite pixels, duplicate ids, negative ids") \
+    X(uint64_t, observations_low_disparity, "refused for disparity below min_disparity or depth above max_depth") \
+    X(uint64_t, observations_used,          "applied in an update") \
+    X(uint64_t, observations_gated,         "refused as outliers (RANSAC or gate, and not rescued)") \
+    X(uint64_t, observations_rescued,       "outliers of the first pass accepted after the correction") \
+    X(uint64_t, observations_deferred,      "inliers left out of an update by max_update_observations") \
+    X(uint64_t, observations_behind_camera, "predicted behind the camera: not used") \
+    X(uint64_t, landmarks_initialized,      "admitted to the window") \
+    X(uint64_t, landmarks_deferred,         "admissions postponed because the window was full") \
+    X(uint64_t, tracks_inconsistent,        "candidate observations that disagreed with their track's previous one") \
+    X(uint64_t, frames_reassociated,        "frames whose tracked observations were all distrusted") \
+    X(uint64_t, frames_repeated,            "frames repeating the previous frame's pixels exactly (a stale image)") \
+    X(uint64_t, tracks_broken,              "window landmarks whose observation contradicted them: mapped, id restarted") \
+    X(uint64_t, landmarks_marginalized,     "left the window and handed to the sink") \
+    X(uint64_t, landmarks_evicted,          "of those, removed early to make room") \
+    X(uint64_t, numerical_failures,         "updates refused with VL_ERR_NOT_POSITIVE_DEFINITE") \
+    X(uint64_t, time_gaps,                  "propagations longer than max_propagation_dt") \
+    X(uint64_t, time_jumps,                 "inputs refused as more than max_time_jump from the clock") \
+    X(uint64_t, timeline_changes,           "re-initializations on a new timeline") \
+    X(uint64_t, divergence_resets,          "re-initializations after divergence") \
+    X(uint64_t, resets,                     "every re-initialization (those two and vl_reset)") \
+    X(uint64_t, landmarks_discarded,        "window landmarks dropped by a reset (not handed to the sink)") \
+    X(uint64_t, imu_implausible,            "IMU samples beyond max_speed or max_rotation_rate") \
+    X(uint64_t, observations_implausible,   "pixels outside the image (with margin) or disparity over max_disparity") \
+    X(uint64_t, imu_silences,               "times the IMU fell silent for longer than max_imu_silence") \
+    X(uint64_t, frames_imu_silent,          "frames refused because the IMU was silent") \
+    X(uint32_t, window_peak,                "most landmarks ever in the window")
+
+/** Running counters; all monotonic since vl_init. One member per VL_COUNTERS row (meaning there). */
 typedef struct {
-    uint64_t imu_accepted;              /**< IMU samples used */
-    uint64_t imu_rejected;              /**< IMU samples refused (non-finite, time order, time jump, implausible) */
-    uint64_t frames_accepted;           /**< frames used */
-    uint64_t frames_rejected;           /**< frames refused (time order, time jump, not ready, IMU silent) */
-    uint64_t frames_truncated;          /**< frames over VL_MAX_FRAME_FEATURES */
-    uint64_t observations_received;     /**< observations in accepted frames, before truncation */
-    uint64_t observations_truncated;    /**< observations dropped by truncation */
-    uint64_t observations_invalid;      /**< non-finite pixels, duplicate ids, negative ids */
-    uint64_t observations_low_disparity;/**< refused for disparity below min_disparity or depth above max_depth */
-    uint64_t observations_used;         /**< applied in an update */
-    uint64_t observations_gated;        /**< refused as outliers (RANSAC or gate, and not rescued) */
-    uint64_t observations_rescued;      /**< outliers of the first pass accepted after the correction */
-    uint64_t observations_deferred;     /**< inliers left out of an update by max_update_observations */
-    uint64_t observations_behind_camera;/**< predicted behind the camera: not used */
-    uint64_t landmarks_initialized;     /**< admitted to the window */
-    uint64_t landmarks_deferred;        /**< admissions postponed because the window was full */
-    uint64_t tracks_inconsistent;       /**< candidate observations that disagreed with their track's previous one */
-    uint64_t frames_reassociated;       /**< frames whose tracked observations were all distrusted */
-    uint64_t frames_repeated;           /**< frames repeating the previous frame's pixels exactly (a stale image) */
-    uint64_t tracks_broken;             /**< window landmarks whose observation contradicted them: mapped, id restarted */
-    uint64_t landmarks_marginalized;    /**< left the window and handed to the sink */
-    uint64_t landmarks_evicted;         /**< of those, removed early to make room */
-    uint64_t numerical_failures;        /**< updates refused with VL_ERR_NOT_POSITIVE_DEFINITE */
-    uint64_t time_gaps;                 /**< propagations longer than max_propagation_dt */
-    uint64_t time_jumps;                /**< inputs refused as more than max_time_jump from the clock */
-    uint64_t timeline_changes;          /**< re-initializations on a new timeline */
-    uint64_t divergence_resets;         /**< re-initializations after divergence */
-    uint64_t resets;                    /**< every re-initialization (those two and vl_reset) */
-    uint64_t landmarks_discarded;       /**< window landmarks dropped by a reset (not handed to the sink) */
-    uint64_t imu_implausible;           /**< IMU samples beyond max_speed or max_rotation_rate */
-    uint64_t observations_implausible;  /**< pixels outside the image (with margin) or disparity over max_disparity */
-    uint64_t imu_silences;              /**< times the IMU fell silent for longer than max_imu_silence */
-    uint64_t frames_imu_silent;         /**< frames refused because the IMU was silent */
-    uint32_t window_peak;               /**< most landmarks ever in the window */
+#define VL_COUNTER_MEMBER_(type, name, meaning) type name;
+    VL_COUNTERS(VL_COUNTER_MEMBER_)
+#undef VL_COUNTER_MEMBER_
 } vl_counters_t;
 
 /** One named counter, for printing and publishing every counter without listing them again. */
 typedef struct {
-    const char *name; /**< the vl_counters_t member's name */
-    uint64_t value;   /**< its value */
+    const char *name;    /**< the vl_counters_t member's name */
+    uint64_t value;      /**< its value */
+    const char *meaning; /**< what it counts (the VL_COUNTERS row's text) */
 } vl_counter_entry_t;
 
-/** Number of members of vl_counters_t. */
-#define VL_NUM_COUNTERS 34
+/** @cond */
+#define VL_COUNTER_ONE_(type, name, meaning) +1
+/** @endcond */
+/** Number of members of vl_counters_t (rows of VL_COUNTERS). */
+#define VL_NUM_COUNTERS (0 VL_COUNTERS(VL_COUNTER_ONE_))
 
 /** Per-landmark bookkeeping of the window (internal; read with vl_get_landmarks). */
 typedef struct {
