@@ -77,6 +77,9 @@ int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channe
 /* A payload must be exactly one message: a short read or leftover bytes both mean corruption. */
 static int check_decoded(int used, int len, const char *type, vl_log_event_t *ev)
 {
+    if (vl_msg_decoded_whole(used, len)) {
+        return 1;
+    }
     if (used < 0) {
         snprintf(ev->error, sizeof(ev->error), "%s event %lld: %d-byte payload is not a valid %s (size or hash)",
                  ev->channel, (long long)ev->event_number, len, type);

@@ -20,6 +20,7 @@
 #include <stdint.h>
 
 #include "vislam/vislam.h"
+#include "vl_channels.h"
 #include "vl_log_guard.h"
 
 #include "vislam_calibration_t.h"
@@ -33,10 +34,6 @@ extern "C" {
 /** Longest channel name the reader stores, terminator included. */
 #define VL_LOG_CHANNEL_MAX 64
 
-/** Default channel names, shared with the daemon and the log writers. */
-#define VL_CHANNEL_IMU "VISLAM_IMU"
-#define VL_CHANNEL_FEATURES "VISLAM_FEATURES"
-#define VL_CHANNEL_CALIBRATION "VISLAM_CALIB"
 
 /** Channels the reader decodes; NULL or empty members take the defaults. */
 typedef struct {

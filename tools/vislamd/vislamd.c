@@ -34,6 +34,7 @@
 #include <lcm/lcm.h>
 
 #include "vislam/vislam.h"
+#include "vl_channels.h"
 #include "vl_clock.h"
 #include "vl_config_file.h"
 #include "vl_latency.h"
@@ -80,8 +81,8 @@ typedef struct {
 
 enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_COUNT };
 
-static const char *const channel_default[CH_COUNT] = {"VISLAM_IMU",  "VISLAM_FEATURES", "VISLAM_CALIB",
-                                                      "VISLAM_POSE", "POSE",            "VISLAM_STATUS"};
+static const char *const channel_default[CH_COUNT] = {VL_CHANNEL_IMU,  VL_CHANNEL_FEATURES,  VL_CHANNEL_CALIBRATION,
+                                                      VL_CHANNEL_POSE, VL_CHANNEL_BOT_POSE, VL_CHANNEL_STATUS};
 static const char *const channel_option[CH_COUNT] = {"--imu-channel",  "--features-channel", "--calib-channel",
                                                      "--pose-channel", "--bot-pose-channel", "--status-channel"};
 
@@ -150,12 +151,12 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: vislamd [options]\n"
-            "Runs the vislam estimator on LCM messages: subscribes to VISLAM_IMU, VISLAM_FEATURES and\n"
-            "VISLAM_CALIB, publishes VISLAM_POSE and POSE (bot_core.pose_t) after every step and\n"
-            "VISLAM_STATUS once a second. Stops on SIGINT or SIGTERM after the current step.\n"
+            "Runs the vislam estimator on LCM messages: subscribes to " VL_CHANNEL_IMU ", " VL_CHANNEL_FEATURES " and\n"
+            VL_CHANNEL_CALIBRATION ", publishes " VL_CHANNEL_POSE " and " VL_CHANNEL_BOT_POSE " (bot_core.pose_t) after every step and\n"
+            VL_CHANNEL_STATUS " once a second. Stops on SIGINT or SIGTERM after the current step.\n"
             "\n"
             "  --config FILE           INI configuration on top of the defaults (see tools/vislam.ini);\n"
-            "                          its [calibration] is used until the VISLAM_CALIB message arrives\n"
+            "                          its [calibration] is used until the " VL_CHANNEL_CALIBRATION " message arrives\n"
             "                          (or always, with override_log = true)\n"
             "  --lcm-url URL           LCM provider, e.g. udpm://239.255.76.67:7667?ttl=0\n"
             "                          (default: $LCM_DEFAULT_URL, else LCM's default)\n"
@@ -168,12 +169,12 @@ static void usage(FILE *f)
             "  --cpu K                 pin to CPU K (a refusal is a warning)\n"
             "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
             "  --channel-prefix P      prefix every channel name below with P\n"
-            "  --imu-channel NAME      default VISLAM_IMU\n"
-            "  --features-channel NAME default VISLAM_FEATURES\n"
-            "  --calib-channel NAME    default VISLAM_CALIB\n"
-            "  --pose-channel NAME     default VISLAM_POSE\n"
-            "  --bot-pose-channel NAME default POSE\n"
-            "  --status-channel NAME   default VISLAM_STATUS\n"
+            "  --imu-channel NAME      default " VL_CHANNEL_IMU "\n"
+            "  --features-channel NAME default " VL_CHANNEL_FEATURES "\n"
+            "  --calib-channel NAME    default " VL_CHANNEL_CALIBRATION "\n"
+            "  --pose-channel NAME     default " VL_CHANNEL_POSE "\n"
+            "  --bot-pose-channel NAME default " VL_CHANNEL_BOT_POSE "\n"
+            "  --status-channel NAME   default " VL_CHANNEL_STATUS "\n"
             "  --quiet                 only warnings and errors on stderr (no periodic status line, no\n"
             "                          exit summary)\n"
             "  --help                  this text\n"
