@@ -18,9 +18,8 @@
  * calibration policy, counters, health bits and core logger that vislam-run
  * uses too, so a lockstep replay gives the same trajectory as the offline run.
  */
-#define _GNU_SOURCE /* RTLD_DEFAULT */
+#define _POSIX_C_SOURCE 200809L
 
-#include <dlfcn.h>
 #include <errno.h>
 #include <inttypes.h>
 #include <poll.h>
@@ -88,9 +87,6 @@ static const char *const channel_option[CH_COUNT] = {"--imu-channel",  "--featur
 
 typedef enum { STEP_PROPAGATE = 0, STEP_UPDATE = 1 } step_kind_t;
 
-typedef uint64_t (*alloc_count_fn)(void);
-typedef void (*alloc_arm_fn)(void);
-
 /* The daemon's own counts; the inputs' are the session's (vl_session_counters). */
 typedef struct {
     uint64_t bot_poses_out, status_out, publish_errors;
@@ -134,11 +130,6 @@ typedef struct {
     int64_t last_overrun_log_us;
     uint64_t overruns_unlogged;
     uint64_t overruns_at_status; /* "since the last status" for BUDGET_OVERRUN */
-
-    /* allocation counter (LD_PRELOAD), when present */
-    alloc_count_fn alloc_count;
-    alloc_count_fn alloc_count_main; /* the main thread's allocations since vl_alloc_arm */
-    uint64_t alloc_baseline;
 } daemon_t;
 
 /* Several MB (the estimator): static, so it is mapped and locked with the rest at start-up. */
@@ -380,11 +371,6 @@ static int32_t clamp32(int64_t v)
     return v > INT32_MAX ? INT32_MAX : (v < INT32_MIN ? INT32_MIN : (int32_t)v);
 }
 
-static uint64_t allocations_since_start(const daemon_t *d)
-{
-    return d->alloc_count != NULL ? d->alloc_count() - d->alloc_baseline : 0;
-}
-
 /* The session's fields, then the daemon's: wall-clock stamp, budget, latencies. */
 static void publish_status(daemon_t *d)
 {
@@ -456,12 +442,6 @@ static void print_status_line(const daemon_t *d)
             s->imu_in, s->frames_in, s->poses_out, s->inputs_rejected, (int)s->window_landmarks,
             (int)s->window_capacity, s->steps, (int)s->latency_p50_us, (int)s->latency_p99_us,
             (int)s->latency_max_us, s->budget_overruns, s->budget_us, (unsigned)s->health);
-    if (d->alloc_count != NULL) {
-        fprintf(stderr, " allocations-after-start-up %" PRIu64, allocations_since_start(d));
-        if (d->alloc_count_main != NULL) {
-            fprintf(stderr, " (main thread %" PRIu64 ")", d->alloc_count_main());
-        }
-    }
     fputc('\n', stderr);
 }
 
@@ -569,6 +549,16 @@ static void realtime_setup(const options_t *o)
             fprintf(stderr, "vislamd: %s%s\n", s != VL_RT_OK ? "warning: " : "", msg);
         }
     }
+}
+
+/*
+ * The last step of start-up: LCM, the estimator, the buffers and the stack are
+ * mapped by now, so MCL_CURRENT locks what the loop touches (MCL_FUTURE the rest).
+ * Scheduling comes first (realtime_setup) so LCM's thread inherits it.
+ */
+static void lock_memory(const options_t *o)
+{
+    char msg[256];
     if (!o->no_mlock) {
         const vl_rt_status_t s = vl_rt_lock_memory(msg, sizeof(msg));
         if (s != VL_RT_OK || !o->quiet) {
@@ -644,13 +634,6 @@ static void print_summary(const daemon_t *d)
     vl_latency_print(&d->lat_step[STEP_UPDATE], stderr, "    update     ");
     fprintf(stderr, "  histogram of all steps:\n");
     vl_latency_print_buckets(&d->lat_all, stderr);
-    if (d->alloc_count != NULL) {
-        fprintf(stderr, "  heap allocations after start-up: %" PRIu64 " in the process", allocations_since_start(d));
-        if (d->alloc_count_main != NULL) {
-            fprintf(stderr, ", %" PRIu64 " in the main (estimation) thread", d->alloc_count_main());
-        }
-        fprintf(stderr, " (preloaded allocation counter)\n");
-    }
 }
 
 int main(int argc, char **argv)
@@ -728,24 +711,9 @@ int main(int argc, char **argv)
 
     warm_up_lcm(d, fd); /* also publishes the first status: "I am up" */
 
-    /* End of start-up: from here on the loop should not allocate. */
-    void *sym = dlsym(RTLD_DEFAULT, "vl_alloc_count");
-    if (sym != NULL) {
-        memcpy(&d->alloc_count, &sym, sizeof(sym));
-    }
-    sym = dlsym(RTLD_DEFAULT, "vl_alloc_count_armed_thread");
-    if (sym != NULL) {
-        memcpy(&d->alloc_count_main, &sym, sizeof(sym));
-    }
-    sym = dlsym(RTLD_DEFAULT, "vl_alloc_arm");
-    if (d->alloc_count != NULL) {
-        d->alloc_baseline = d->alloc_count();
-    }
-    if (sym != NULL) {
-        alloc_arm_fn arm;
-        memcpy(&arm, &sym, sizeof(sym));
-        arm();
-    }
+    /* End of start-up: everything the loop uses is mapped; lock it. From here on the loop does
+       not allocate (an LD_PRELOAD counter can take this mlockall as its mark: tests/support). */
+    lock_memory(&d->opt);
     if (!d->opt.quiet) {
         fprintf(stderr, "vislamd: ready: %s %s %s -> %s %s %s (lcm %s)%s\n", d->channel[CH_IMU],
                 d->channel[CH_FEATURES], d->channel[CH_CALIB], d->channel[CH_POSE], d->channel[CH_BOT_POSE],
