@@ -19,6 +19,10 @@
 #      and equals vislam-run with the same config.
 #   6. the same log replayed twice into one daemon (issue 7): the second pass is a new timeline,
 #      the daemon re-initializes within a few inputs, says so in VISLAM_STATUS, and tracks again.
+# Synchronization waits on what the daemon publishes (its statuses, read back from the recording
+# or awaited by vislam-replay --wait-for), never on fixed delays; every number checked comes from
+# recorded messages, the replay's JSON summary, the trajectory files or the allocation counter's
+# own report, never from the daemon's stderr.
 # Exit 77 (CTest skip) when a private network namespace or lcm-logger is unavailable.
 set -uo pipefail
 
@@ -97,6 +101,55 @@ wait_exit() {
   WAIT_RC=124
 }
 
+# Synchronization is on what the daemon publishes, never on guessed delays: a recording is
+# read back (vl_log_inspect) while lcm-logger writes it (--flush-interval=1: each event reaches
+# the file as it is written; the default flushes only when an event comes 100 ms after the last).
+# wait_recorded LOG KEY MIN SECONDS: until vl_log_inspect's KEY >= MIN in LOG; 1 on timeout.
+wait_recorded() {
+  local deadline=$((SECONDS + $4)) v
+  while [ "$SECONDS" -le "$deadline" ]; do
+    if [ -s "$1" ]; then
+      v=$("$INSPECT" "$1" 2>/dev/null | awk -v k="$2" '$1 == k { print $2 }')
+      if [ -n "$v" ] && [ "$v" -ge "$3" ] 2>/dev/null; then
+        return 0
+      fi
+    fi
+    sleep 0.05 # the poll period, not a guess at when something happens
+  done
+  echo "      timed out waiting for $2 >= $3 in $1"
+  return 1
+}
+# start_recording NAME CHANNELS ERR -- COMMAND...: lcm-logger into $OUT/NAME.lcmlog, then the daemon
+# COMMAND with its stderr into ERR.
+# Returns once the recording holds one of the daemon's statuses: the logger is subscribed and the
+# daemon is up, before any input is sent.
+start_recording() {
+  local name=$1 channels=$2 err=$3
+  shift 4
+  lcm-logger --lcm-url="$URL" --channel="$channels" --flush-interval=1 -q -f "$OUT/$name.lcmlog" &
+  LOGGER=$!
+  PIDS+=("$LOGGER")
+  "$@" 2>"$err" &
+  DAEMON=$!
+  PIDS+=("$DAEMON")
+  # The daemon publishes a status at start-up and once a second: one second and a bit covers a
+  # logger that subscribed just after the first.
+  wait_recorded "$OUT/$name.lcmlog" status.count 1 10
+}
+# stop_daemon_and_recording NAME: SIGTERM to the daemon ($WAIT_RC its exit status), then the logger
+# once the recording holds a status stamped after the SIGTERM: the daemon's final one.
+stop_daemon_and_recording() {
+  local t_term
+  t_term=$(date +%s%6N)
+  kill -TERM "$DAEMON"
+  wait_exit "$DAEMON" 10
+  local rc=$WAIT_RC
+  wait_recorded "$OUT/$1.lcmlog" status.last.utime "$t_term" 5
+  kill -INT "$LOGGER"
+  wait_exit "$LOGGER" 5
+  WAIT_RC=$rc
+}
+
 START=$SECONDS
 echo "== offline reference: vislam-run"
 "$BIN/vislam-run" "$LOG" --trajectory "$OUT/offline.tum" --quiet
@@ -107,23 +160,14 @@ LAST_UTIME=$(tail -n 1 "$OUT/offline.tum" | awk '{ split($1, t, "."); printf "%d
 
 # ---- run A: full lockstep replay at 4x ---------------------------------------------------------
 echo "== run A: vislamd + vislam-replay --lockstep --speed 4"
-lcm-logger --lcm-url="$URL" --channel='(VISLAM_POSE|POSE|VISLAM_STATUS)' -q -f "$OUT/a.lcmlog" &
-LOGGER=$!
-PIDS+=("$LOGGER")
-sleep 0.5 # subscribed before the daemon's first status
-VL_ALLOC_REPORT="$OUT/a.alloc" LD_PRELOAD="$ALLOC_SO" "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/a.tum" \
-  2>"$OUT/a.daemon.err" &
-DAEMON=$!
-PIDS+=("$DAEMON")
+start_recording a '(VISLAM_POSE|POSE|VISLAM_STATUS)' "$OUT/a.daemon.err" -- \
+  env VL_ALLOC_REPORT="$OUT/a.alloc" LD_PRELOAD="$ALLOC_SO" "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/a.tum"
+check "run A: the daemon's first status recorded before any input" eq $? 0
 "$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 4 --wait-for VISLAM_STATUS --timeout-ms 5000 \
   --summary-json "$OUT/a.replay.json" 2>"$OUT/a.replay.err"
 check "replay A exits 0 (every frame's pose came back)" eq $? 0
-kill -TERM "$DAEMON"
-wait_exit "$DAEMON" 10
+stop_daemon_and_recording a
 check "daemon A exits 0 on SIGTERM" eq "$WAIT_RC" 0
-sleep 0.3 # the final status reaches the logger
-kill -INT "$LOGGER"
-wait_exit "$LOGGER" 5
 "$INSPECT" "$OUT/a.lcmlog" >"$OUT/a.inspect"
 sed 's/^/      /' "$OUT/a.replay.err" | grep -v '^\s*$'
 grep -E 'step latency|all steps|propagation|update  ' "$OUT/a.daemon.err" | sed 's/^/      /'
@@ -174,26 +218,18 @@ check "process-wide allocations after start-up bounded (<= 150; measured $ALLOC_
 
 # ---- run B: SIGTERM in the middle of a real-time replay ----------------------------------------
 echo "== run B: SIGTERM in the middle of a replay at the recorded rate"
-lcm-logger --lcm-url="$URL" --channel='(VISLAM_POSE|VISLAM_STATUS)' -q -f "$OUT/b.lcmlog" &
-LOGGER=$!
-PIDS+=("$LOGGER")
-sleep 0.5
-"$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/b.tum" --quiet 2>"$OUT/b.daemon.err" &
-DAEMON=$!
-PIDS+=("$DAEMON")
+start_recording b '(VISLAM_POSE|VISLAM_STATUS)' "$OUT/b.daemon.err" -- \
+  "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/b.tum" --quiet
 "$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --wait-for VISLAM_STATUS --timeout-ms 1000 \
   --quiet 2>"$OUT/b.replay.err" &
 REPLAY=$!
 PIDS+=("$REPLAY")
-sleep 3
-kill -TERM "$DAEMON"
-wait_exit "$DAEMON" 10
+# Mid-run: a status says 20 frames arrived (of 200, at 10 per second).
+wait_recorded "$OUT/b.lcmlog" status.last.frames_in 20 30
+stop_daemon_and_recording b
 check "daemon B exits 0 on SIGTERM mid-run" eq "$WAIT_RC" 0
 kill -INT "$REPLAY" 2>/dev/null
 wait_exit "$REPLAY" 10
-sleep 0.3
-kill -INT "$LOGGER"
-wait_exit "$LOGGER" 5
 "$INSPECT" "$OUT/b.lcmlog" >"$OUT/b.inspect"
 B=$OUT/b.inspect
 LINES_B=$(wc -l <"$OUT/b.tum")
@@ -241,25 +277,16 @@ check "daemon C trajectory byte-identical to vislam-run's with the same config" 
 
 # ---- run D: the same log twice into one daemon -------------------------------------------------
 echo "== run D: the log replayed twice into one daemon (a new timeline 20 s back)"
-lcm-logger --lcm-url="$URL" --channel='(VISLAM_POSE|VISLAM_STATUS)' -q -f "$OUT/d.lcmlog" &
-LOGGER=$!
-PIDS+=("$LOGGER")
-sleep 0.5
-"$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/d.tum" --quiet 2>"$OUT/d.daemon.err" &
-DAEMON=$!
-PIDS+=("$DAEMON")
+start_recording d '(VISLAM_POSE|VISLAM_STATUS)' "$OUT/d.daemon.err" -- \
+  "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/d.tum" --quiet
 "$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 8 --wait-for VISLAM_STATUS --timeout-ms 5000 \
   --quiet 2>"$OUT/d1.replay.err"
 check "replay D1 exits 0" eq $? 0
 # The second pass's first inputs are refused (20 s back: a time jump) until they form a timeline:
 # their frames get no pose, so this replay's lockstep times out on them and exits non-zero.
 "$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 8 --timeout-ms 300 --quiet 2>"$OUT/d2.replay.err"
-kill -TERM "$DAEMON"
-wait_exit "$DAEMON" 10
+stop_daemon_and_recording d
 check "daemon D exits 0 on SIGTERM" eq "$WAIT_RC" 0
-sleep 0.3
-kill -INT "$LOGGER"
-wait_exit "$LOGGER" 5
 "$INSPECT" "$OUT/d.lcmlog" >"$OUT/d.inspect"
 D=$OUT/d.inspect
 check "one re-initialization, on a new timeline; the inputs before it refused as time jumps (4)" \
