@@ -85,50 +85,19 @@ value() { # value FILE KEY -> the value of "KEY value" in FILE
 }
 eq() { [ "$1" = "$2" ] || { echo "      expected '$2', got '$1'"; return 1; }; }
 le() { [ "$1" -le "$2" ] 2>/dev/null || { echo "      expected $1 <= $2"; return 1; }; }
-# wait_exit PID SECONDS: waits for PID to end; its exit status in $WAIT_RC (124 on timeout).
-wait_exit() {
-  local i
-  for ((i = 0; i < $2 * 10; i++)); do
-    if ! kill -0 "$1" 2>/dev/null; then
-      wait "$1"
-      WAIT_RC=$?
-      return 0
-    fi
-    sleep 0.1
-  done
-  kill -KILL "$1" 2>/dev/null
-  wait "$1" 2>/dev/null
-  WAIT_RC=124
-}
 
-# Synchronization is on what the daemon publishes, never on guessed delays: a recording is
-# read back (vl_log_inspect) while lcm-logger writes it (--flush-interval=1: each event reaches
-# the file as it is written; the default flushes only when an event comes 100 ms after the last).
-# wait_recorded LOG KEY MIN SECONDS: until vl_log_inspect's KEY >= MIN in LOG; 1 on timeout.
-wait_recorded() {
-  local deadline=$((SECONDS + $4)) v
-  while [ "$SECONDS" -le "$deadline" ]; do
-    if [ -s "$1" ]; then
-      v=$("$INSPECT" "$1" 2>/dev/null | awk -v k="$2" '$1 == k { print $2 }')
-      if [ -n "$v" ] && [ "$v" -ge "$3" ] 2>/dev/null; then
-        return 0
-      fi
-    fi
-    sleep 0.05 # the poll period, not a guess at when something happens
-  done
-  echo "      timed out waiting for $2 >= $3 in $1"
-  return 1
-}
+# shellcheck source=support/vl_record.sh
+source "$(dirname "$0")/support/vl_record.sh"
+
 # start_recording NAME CHANNELS ERR -- COMMAND...: lcm-logger into $OUT/NAME.lcmlog, then the daemon
 # COMMAND with its stderr into ERR.
 # Returns once the recording holds one of the daemon's statuses: the logger is subscribed and the
-# daemon is up, before any input is sent.
+# daemon is up and subscribed, before any input is sent (so replays after it need no --wait-for,
+# which would wait for the next periodic status).
 start_recording() {
   local name=$1 channels=$2 err=$3
   shift 4
-  lcm-logger --lcm-url="$URL" --channel="$channels" --flush-interval=1 -q -f "$OUT/$name.lcmlog" &
-  LOGGER=$!
-  PIDS+=("$LOGGER")
+  record_start "$name" "$channels"
   "$@" 2>"$err" &
   DAEMON=$!
   PIDS+=("$DAEMON")
@@ -136,20 +105,6 @@ start_recording() {
   # logger that subscribed just after the first.
   wait_recorded "$OUT/$name.lcmlog" status.count 1 10
 }
-# stop_daemon_and_recording NAME: SIGTERM to the daemon ($WAIT_RC its exit status), then the logger
-# once the recording holds a status stamped after the SIGTERM: the daemon's final one.
-stop_daemon_and_recording() {
-  local t_term
-  t_term=$(date +%s%6N)
-  kill -TERM "$DAEMON"
-  wait_exit "$DAEMON" 10
-  local rc=$WAIT_RC
-  wait_recorded "$OUT/$1.lcmlog" status.last.utime "$t_term" 5
-  kill -INT "$LOGGER"
-  wait_exit "$LOGGER" 5
-  WAIT_RC=$rc
-}
-
 START=$SECONDS
 echo "== offline reference: vislam-run"
 "$BIN/vislam-run" "$LOG" --trajectory "$OUT/offline.tum" --quiet
@@ -163,10 +118,10 @@ echo "== run A: vislamd + vislam-replay --lockstep --speed 4"
 start_recording a '(VISLAM_POSE|POSE|VISLAM_STATUS)' "$OUT/a.daemon.err" -- \
   env VL_ALLOC_REPORT="$OUT/a.alloc" LD_PRELOAD="$ALLOC_SO" "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/a.tum"
 check "run A: the daemon's first status recorded before any input" eq $? 0
-"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 4 --wait-for VISLAM_STATUS --timeout-ms 5000 \
+"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 4 --timeout-ms 5000 \
   --summary-json "$OUT/a.replay.json" 2>"$OUT/a.replay.err"
 check "replay A exits 0 (every frame's pose came back)" eq $? 0
-stop_daemon_and_recording a
+record_stop a
 check "daemon A exits 0 on SIGTERM" eq "$WAIT_RC" 0
 "$INSPECT" "$OUT/a.lcmlog" >"$OUT/a.inspect"
 sed 's/^/      /' "$OUT/a.replay.err" | grep -v '^\s*$'
@@ -220,13 +175,13 @@ check "process-wide allocations after start-up bounded (<= 150; measured $ALLOC_
 echo "== run B: SIGTERM in the middle of a replay at the recorded rate"
 start_recording b '(VISLAM_POSE|VISLAM_STATUS)' "$OUT/b.daemon.err" -- \
   "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/b.tum" --quiet
-"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --wait-for VISLAM_STATUS --timeout-ms 1000 \
+"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --timeout-ms 1000 \
   --quiet 2>"$OUT/b.replay.err" &
 REPLAY=$!
 PIDS+=("$REPLAY")
 # Mid-run: a status says 20 frames arrived (of 200, at 10 per second).
 wait_recorded "$OUT/b.lcmlog" status.last.frames_in 20 30
-stop_daemon_and_recording b
+record_stop b
 check "daemon B exits 0 on SIGTERM mid-run" eq "$WAIT_RC" 0
 kill -INT "$REPLAY" 2>/dev/null
 wait_exit "$REPLAY" 10
@@ -279,13 +234,13 @@ check "daemon C trajectory byte-identical to vislam-run's with the same config" 
 echo "== run D: the log replayed twice into one daemon (a new timeline 20 s back)"
 start_recording d '(VISLAM_POSE|VISLAM_STATUS)' "$OUT/d.daemon.err" -- \
   "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/d.tum" --quiet
-"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 8 --wait-for VISLAM_STATUS --timeout-ms 5000 \
+"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 8 --timeout-ms 5000 \
   --quiet 2>"$OUT/d1.replay.err"
 check "replay D1 exits 0" eq $? 0
 # The second pass's first inputs are refused (20 s back: a time jump) until they form a timeline:
 # their frames get no pose, so this replay's lockstep times out on them and exits non-zero.
 "$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 8 --timeout-ms 300 --quiet 2>"$OUT/d2.replay.err"
-stop_daemon_and_recording d
+record_stop d
 check "daemon D exits 0 on SIGTERM" eq "$WAIT_RC" 0
 "$INSPECT" "$OUT/d.lcmlog" >"$OUT/d.inspect"
 D=$OUT/d.inspect
