@@ -11,8 +11,10 @@
  * received through lcm_subscribe's raw handler and decoded into static storage
  * (the message types are fixed-size), poses are encoded into static buffers and
  * sent with lcm_publish, and every step is timed with CLOCK_MONOTONIC into
- * fixed-memory histograms. Whether that holds, LCM included, is measured when
- * an allocation counter exposing vl_alloc_count() is preloaded (tests/support).
+ * fixed-memory histograms. Memory is locked as the last step of start-up.
+ * Whether the loop allocates, LCM included, is measured from outside by a
+ * preloaded counter (tests/support/vl_alloc_counter.c); the daemon knows
+ * nothing of it.
  *
  * Between the messages and the core sits the session (vl_session): the
  * calibration policy, counters, health bits and core logger that vislam-run
