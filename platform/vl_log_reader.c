@@ -77,6 +77,9 @@ int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channe
 /* A payload must be exactly one message: a short read or leftover bytes both mean corruption. */
 static int check_decoded(int used, int len, const char *type, vl_log_event_t *ev)
 {
+    if (vl_msg_decoded_whole(used, len)) {
+        return 1;
+    }
     if (used < 0) {
         snprintf(ev->error, sizeof(ev->error), "%s event %lld: %d-byte payload is not a valid %s (size or hash)",
                  ev->channel, (long long)ev->event_number, len, type);
@@ -88,6 +91,43 @@ static int check_decoded(int used, int len, const char *type, vl_log_event_t *ev
         return 0;
     }
     return 1;
+}
+
+vl_log_event_kind_t vl_log_event_decode(vl_log_decoder_t *d, vl_log_event_kind_t kind, const void *data, int len,
+                                        vl_log_event_t *ev)
+{
+    int ok = 0;
+    ev->error[0] = '\0';
+    switch (kind) {
+    case VL_LOG_EVENT_IMU:
+        ok = check_decoded(vislam_imu_t_decode(data, 0, len, &d->imu), len, "vislam.imu_t", ev);
+        if (ok) {
+            vl_msg_to_imu(&d->imu, &ev->imu);
+        }
+        break;
+    case VL_LOG_EVENT_FRAME:
+        ok = check_decoded(vislam_stereo_frame_t_decode(data, 0, len, &d->frame), len, "vislam.stereo_frame_t", ev);
+        if (ok && vl_msg_to_stereo_frame(&d->frame, &ev->frame) != VL_MSG_OK) {
+            snprintf(ev->error, sizeof(ev->error), "%s event %lld: num_features %d outside 0..%d", ev->channel,
+                     (long long)ev->event_number, (int)d->frame.num_features, VISLAM_STEREO_FRAME_T_MAX_FEATURES);
+            ok = 0;
+        }
+        break;
+    case VL_LOG_EVENT_CALIBRATION:
+        ok = check_decoded(vislam_calibration_t_decode(data, 0, len, &d->calibration), len, "vislam.calibration_t",
+                           ev);
+        if (ok) {
+            vl_msg_to_calibration(&d->calibration, &ev->calibration, &ev->calibration_utime);
+        }
+        break;
+    default:
+        snprintf(ev->error, sizeof(ev->error), "%s event %lld: not an input channel", ev->channel,
+                 (long long)ev->event_number);
+        break;
+    }
+    ev->decode_kind = kind;
+    ev->kind = ok ? kind : VL_LOG_EVENT_DECODE_ERROR;
+    return ev->kind;
 }
 
 vl_log_event_kind_t vl_log_reader_next(vl_log_reader_t *r, vl_log_event_t *ev)
@@ -127,49 +167,34 @@ vl_log_event_kind_t vl_log_reader_next(vl_log_reader_t *r, vl_log_event_t *ev)
         ev->log_utime = le->timestamp;
         snprintf(ev->channel, sizeof(ev->channel), "%s", le->channel);
 
-        const int len = le->datalen;
-        const void *data = le->data;
-        int ok = 1;
         vl_log_event_kind_t kind;
         if (strcmp(le->channel, r->imu_channel) == 0) {
-            ok = check_decoded(vislam_imu_t_decode(data, 0, len, &r->imu_msg), len, "vislam.imu_t", ev);
-            if (ok) {
-                vl_msg_to_imu(&r->imu_msg, &ev->imu);
-                r->stats.imu++;
-            }
             kind = VL_LOG_EVENT_IMU;
         } else if (strcmp(le->channel, r->features_channel) == 0) {
-            ok = check_decoded(vislam_stereo_frame_t_decode(data, 0, len, &r->frame_msg), len,
-                                "vislam.stereo_frame_t", ev);
-            if (ok && vl_msg_to_stereo_frame(&r->frame_msg, &ev->frame) != VL_MSG_OK) {
-                snprintf(ev->error, sizeof(ev->error), "%s event %lld: num_features %d outside 0..%d",
-                         ev->channel, (long long)ev->event_number, (int)r->frame_msg.num_features,
-                         VISLAM_STEREO_FRAME_T_MAX_FEATURES);
-                ok = 0;
-            }
-            if (ok) {
-                r->stats.frames++;
-            }
             kind = VL_LOG_EVENT_FRAME;
         } else if (strcmp(le->channel, r->calibration_channel) == 0) {
-            ok = check_decoded(vislam_calibration_t_decode(data, 0, len, &r->calibration_msg), len,
-                                "vislam.calibration_t", ev);
-            if (ok) {
-                vl_msg_to_calibration(&r->calibration_msg, &ev->calibration, &ev->calibration_utime);
-                r->stats.calibrations++;
-            }
             kind = VL_LOG_EVENT_CALIBRATION;
         } else {
             r->stats.skipped++;
             lcm_eventlog_free_event(le);
             continue;
         }
+        kind = vl_log_event_decode(&r->decoder, kind, le->data, le->datalen, ev);
         lcm_eventlog_free_event(le);
-        if (!ok) {
+        switch (kind) {
+        case VL_LOG_EVENT_IMU:
+            r->stats.imu++;
+            break;
+        case VL_LOG_EVENT_FRAME:
+            r->stats.frames++;
+            break;
+        case VL_LOG_EVENT_CALIBRATION:
+            r->stats.calibrations++;
+            break;
+        default:
             r->stats.decode_errors++;
-            kind = VL_LOG_EVENT_DECODE_ERROR;
+            break;
         }
-        ev->kind = kind;
         return kind;
     }
 }

@@ -20,6 +20,7 @@
 #include <stdint.h>
 
 #include "vislam/vislam.h"
+#include "vl_channels.h"
 #include "vl_log_guard.h"
 
 #include "vislam_calibration_t.h"
@@ -33,10 +34,6 @@ extern "C" {
 /** Longest channel name the reader stores, terminator included. */
 #define VL_LOG_CHANNEL_MAX 64
 
-/** Default channel names, shared with the daemon and the log writers. */
-#define VL_CHANNEL_IMU "VISLAM_IMU"
-#define VL_CHANNEL_FEATURES "VISLAM_FEATURES"
-#define VL_CHANNEL_CALIBRATION "VISLAM_CALIB"
 
 /** Channels the reader decodes; NULL or empty members take the defaults. */
 typedef struct {
@@ -67,7 +64,28 @@ typedef struct {
     vl_calibration_t calibration;    /**< kind == VL_LOG_EVENT_CALIBRATION */
     int64_t calibration_utime;       /**< us, stamp of the calibration message */
     char error[256];                 /**< kind == VL_LOG_EVENT_DECODE_ERROR or _CORRUPT: what went wrong */
+    vl_log_event_kind_t decode_kind; /**< kind == VL_LOG_EVENT_DECODE_ERROR: what the payload should have been */
 } vl_log_event_t;
+
+/** Decoding storage of vl_log_event_decode: the message types are fixed-size, so decoding never allocates. */
+typedef struct {
+    vislam_imu_t imu;
+    vislam_stereo_frame_t frame;
+    vislam_calibration_t calibration;
+} vl_log_decoder_t;
+
+/**
+ * Decodes one payload received on the channel of @p kind (VL_LOG_EVENT_IMU,
+ * _FRAME or _CALIBRATION) into @p ev. The one definition of what a valid input
+ * message is, for the log reader and the daemon alike: the payload is exactly
+ * one message (a short read, a wrong hash or trailing bytes are errors) and a
+ * frame's count lies within 0..VISLAM_STEREO_FRAME_T_MAX_FEATURES.
+ * ev->channel and ev->event_number name the event in the error message.
+ * @return @p kind, or VL_LOG_EVENT_DECODE_ERROR (ev->error says why, ev->decode_kind = @p kind);
+ *         also stored in ev->kind
+ */
+vl_log_event_kind_t vl_log_event_decode(vl_log_decoder_t *d, vl_log_event_kind_t kind, const void *data, int len,
+                                        vl_log_event_t *ev);
 
 /** Counts since vl_log_reader_open. */
 typedef struct {
@@ -90,10 +108,7 @@ typedef struct {
     vl_log_guard_t guard;  /**< header checks and resynchronization */
     int ended;
     vl_log_reader_stats_t stats;
-    /* Decoding storage: the message types are fixed-size, so decode never allocates. */
-    vislam_imu_t imu_msg;
-    vislam_stereo_frame_t frame_msg;
-    vislam_calibration_t calibration_msg;
+    vl_log_decoder_t decoder;
 } vl_log_reader_t;
 
 /** Fills @p channels with the default names. */

@@ -166,3 +166,8 @@ int vl_calibration_equal(const vl_calibration_t *a, const vl_calibration_t *b)
     }
     return 1;
 }
+
+int vl_msg_decoded_whole(int used, int len)
+{
+    return used >= 0 && used == len;
+}

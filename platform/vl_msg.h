@@ -58,6 +58,14 @@ vl_msg_status_t vl_msg_to_calibration(const vislam_calibration_t *msg, vl_calibr
 /** Copies a core calibration into a message stamped @p utime (us). */
 vl_msg_status_t vl_msg_from_calibration(const vl_calibration_t *calib, int64_t utime, vislam_calibration_t *out);
 
+/**
+ * 1 when a generated *_decode call that returned @p used consumed exactly the
+ * @p len bytes received, else 0: a short read, a wrong hash and trailing
+ * bytes all mean the payload is not one message. The one check every receiver
+ * of a vislam message applies.
+ */
+int vl_msg_decoded_whole(int used, int len);
+
 /** 1 when two calibrations are equal in every value, else 0. */
 int vl_calibration_equal(const vl_calibration_t *a, const vl_calibration_t *b);
 

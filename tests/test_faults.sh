@@ -99,36 +99,22 @@ eq() { [ "$1" = "$2" ] || { echo "      expected '$2', got '$1'"; return 1; }; }
 ge() { [ "$1" -ge "$2" ] 2>/dev/null || { echo "      expected $1 >= $2"; return 1; }; }
 # at_least_95 GOT OF: GOT >= 95% of OF
 at_least_95() { [ $(($1 * 100)) -ge $(($2 * 95)) ] 2>/dev/null || { echo "      $1 of $2 (< 95%)"; return 1; }; }
-# wait_exit PID SECONDS: waits for PID to end; its exit status in $WAIT_RC (124 on timeout).
-wait_exit() {
-  local i
-  for ((i = 0; i < $2 * 10; i++)); do
-    if ! kill -0 "$1" 2>/dev/null; then
-      WAIT_RC=0
-      wait "$1" || WAIT_RC=$?
-      return 0
-    fi
-    sleep 0.1
-  done
-  kill -KILL "$1" 2>/dev/null || true
-  wait "$1" 2>/dev/null || true
-  WAIT_RC=124
-}
+# shellcheck source=support/vl_record.sh
+source "$(dirname "$0")/support/vl_record.sh" # record_start, wait_recorded, wait_exit, record_stop
 utime_of_tum_line() { awk '{ split($1, t, "."); printf "%d%06d\n", t[1], t[2] }'; }
 crashed() { [ "$1" -ge 128 ] && [ "$1" -ne 124 ]; } # killed by a signal (SIGSEGV 139, SIGABRT 134)
 
 start_logger() { # start_logger NAME: records the daemon's outputs into $OUT/NAME.lcmlog
-  lcm-logger --lcm-url="$URL" --channel='(VISLAM_POSE|VISLAM_STATUS)' -q -f "$OUT/$1.lcmlog" &
-  LOGGER=$!
-  PIDS+=("$LOGGER")
-  sleep 0.5 # subscribed before the daemon's first status
+  record_start "$1" '(VISLAM_POSE|VISLAM_STATUS)'
 }
-start_daemon() { # start_daemon NAME [ARGS...]
-  local name=$1
+start_daemon() { # start_daemon NAME [ARGS...]: returns once the recording holds one of its statuses
+  local name=$1 before
   shift
+  before=$("$INSPECT" "$OUT/$name.lcmlog" 2>/dev/null | awk '$1 == "status.count" { print $2 }' || true)
   "$BIN/vislamd" --lcm-url "$URL" --quiet "$@" 2>>"$OUT/$name.daemon.err" &
   DAEMON=$!
   PIDS+=("$DAEMON")
+  wait_recorded "$OUT/$name.lcmlog" status.count $((${before:-0} + 1)) 10 || true
 }
 measured() { # measured NAME: one line of what the row measured
   local j=$OUT/$1.replay.json i=$OUT/$1.inspect
@@ -139,12 +125,8 @@ measured() { # measured NAME: one line of what the row measured
     "rejected $(value "$i" status.last.inputs_rejected) health $(value "$i" status.last.health)"
 }
 stop_all() { # stop_all NAME [FAULT_UTIME]: SIGTERM to the daemon, the logger stopped, the record inspected
-  kill -TERM "$DAEMON" 2>/dev/null || true
-  wait_exit "$DAEMON" 10
+  record_stop "$1"
   DAEMON_RC=$WAIT_RC
-  sleep 0.3 # the final status reaches the logger
-  kill -INT "$LOGGER" 2>/dev/null || true
-  wait_exit "$LOGGER" 5
   if [ -n "${2:-}" ]; then
     "$INSPECT" "$OUT/$1.lcmlog" --after "$2" >"$OUT/$1.inspect"
   else
@@ -152,12 +134,13 @@ stop_all() { # stop_all NAME [FAULT_UTIME]: SIGTERM to the daemon, the logger st
   fi
   measured "$1"
 }
+# Replays need no --wait-for: start_daemon returned once the daemon's status was recorded, so it
+# is up and subscribed (and --wait-for would share the rows' short --timeout-ms).
 replay() { # replay NAME LOG [ARGS...]: lockstep at 8x; exit status in $REPLAY_RC
   local name=$1 log=$2
   shift 2
   REPLAY_RC=0
-  "$BIN/vislam-replay" "$log" --lcm-url "$URL" --lockstep --speed 8 --wait-for VISLAM_STATUS --wait-timeout-ms 10000 \
-    --timeout-ms 1000 \
+  "$BIN/vislam-replay" "$log" --lcm-url "$URL" --lockstep --speed 8 --timeout-ms 1000 \
     --quiet --summary-json "$OUT/$name.replay.json" "$@" 2>"$OUT/$name.replay.err" || REPLAY_RC=$?
 }
 inject() { # inject FAULT [ARGS...]: $OUT/FAULT.lcmlog; the tool's key=value line into INFO_*
@@ -254,7 +237,7 @@ start_logger rs
 start_daemon rs --trajectory "$OUT/rs.tum"
 FIRST_DAEMON=$DAEMON
 REPLAY_RC=0
-"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 4 --wait-for VISLAM_STATUS --timeout-ms 1000 \
+"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 4 --timeout-ms 1000 \
   --quiet --summary-json "$OUT/rs.replay.json" 2>"$OUT/rs.replay.err" &
 REPLAY=$!
 PIDS+=("$REPLAY")

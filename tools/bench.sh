@@ -35,7 +35,7 @@ daemon_inner() {
   cmds="${VL_BENCH_CMDS:-/dev/null}"
   ip link set lo up multicast on || return 3
   ip route add 224.0.0.0/4 dev lo || return 3
-  [ -n "$alloc" ] && preload=(env LD_PRELOAD="$alloc")
+  [ -n "$alloc" ] && preload=(env VL_ALLOC_REPORT="$prefix.vislamd.alloc" LD_PRELOAD="$alloc")
   daemon_cmd=("${preload[@]}" "$bin/vislamd" --lcm-url "$LCM_URL" --trajectory "$prefix.tum" "$@")
   replay_cmd=("$bin/vislam-replay" "$log" --lcm-url "$LCM_URL" --lockstep --speed "$speed"
     --wait-for VISLAM_STATUS --timeout-ms 5000 --summary-json "$prefix.replay.json")
@@ -65,7 +65,7 @@ soak_inner() {
   ip link set lo up multicast on || return 3
   ip route add 224.0.0.0/4 dev lo || return 3
   local preload=()
-  [ -n "$alloc" ] && preload=(env LD_PRELOAD="$alloc")
+  [ -n "$alloc" ] && preload=(env VL_ALLOC_REPORT="$out/vislamd.alloc" LD_PRELOAD="$alloc")
   rm -f "$out/soak.tum"
   "${preload[@]}" "$bin/vislamd" --lcm-url "$LCM_URL" --trajectory "$out/soak.tum" 2>"$out/vislamd.log" &
   daemon=$!

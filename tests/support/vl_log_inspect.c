@@ -23,7 +23,9 @@
 
 #include <lcm/lcm.h>
 
+#include "vl_channels.h"
 #include "vl_log_guard.h"
+#include "vl_msg.h"
 
 #include "bot_core_pose_t.h"
 #include "vislam_pose_t.h"
@@ -150,8 +152,8 @@ int main(int argc, char **argv)
             break;
         }
         count_channel(ev->channel);
-        if (strcmp(ev->channel, "VISLAM_POSE") == 0) {
-            if (vislam_pose_t_decode(ev->data, 0, ev->datalen, &pose) < 0) {
+        if (strcmp(ev->channel, VL_CHANNEL_POSE) == 0) {
+            if (!vl_msg_decoded_whole(vislam_pose_t_decode(ev->data, 0, ev->datalen, &pose), ev->datalen)) {
                 pose_err++;
             } else {
                 if (pose.sequence != (int64_t)poses) {
@@ -177,8 +179,8 @@ int main(int argc, char **argv)
                     last_after_utime = pose.utime;
                 }
             }
-        } else if (strcmp(ev->channel, "POSE") == 0) {
-            if (bot_core_pose_t_decode(ev->data, 0, ev->datalen, &bot) < 0) {
+        } else if (strcmp(ev->channel, VL_CHANNEL_BOT_POSE) == 0) {
+            if (!vl_msg_decoded_whole(bot_core_pose_t_decode(ev->data, 0, ev->datalen, &bot), ev->datalen)) {
                 bot_err++;
             } else {
                 if (bots >= poses || bots >= MAX_POSES || pose_utime[bots] != bot.utime || pose_x[bots] != bot.pos[0]) {
@@ -186,8 +188,8 @@ int main(int argc, char **argv)
                 }
                 bots++;
             }
-        } else if (strcmp(ev->channel, "VISLAM_STATUS") == 0) {
-            if (vislam_status_t_decode(ev->data, 0, ev->datalen, &status) < 0) {
+        } else if (strcmp(ev->channel, VL_CHANNEL_STATUS) == 0) {
+            if (!vl_msg_decoded_whole(vislam_status_t_decode(ev->data, 0, ev->datalen, &status), ev->datalen)) {
                 status_err++;
             } else {
                 if (statuses == 0) {

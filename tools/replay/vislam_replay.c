@@ -33,9 +33,12 @@
 
 #include <lcm/lcm.h>
 
+#include "vl_channels.h"
 #include "vl_clock.h"
 #include "vl_latency.h"
 #include "vl_log_guard.h"
+#include "vl_log_reader.h"
+#include "vl_msg.h"
 #include "vl_signal.h"
 
 #include "vislam_imu_t.h"
@@ -108,7 +111,6 @@ typedef struct {
     unsigned recent_next, recent_count;
     int64_t last_sequence;
     uint64_t poses_accepted, poses_foreign, poses_non_finite, daemon_restarts;
-    vislam_imu_t imu_msg;
     vislam_status_t status_msg;
     /* sending */
     channel_count_t channels[MAX_CHANNELS];
@@ -124,7 +126,9 @@ typedef struct {
     uint64_t expected, returned, missing;
     vl_latency_t latency;
     vislam_pose_t pose_msg;
-    vislam_stereo_frame_t frame_msg;
+    /* inputs decoded with the receivers' checks (vl_log_event_decode), for their utime */
+    vl_log_decoder_t decoder;
+    vl_log_event_t input;
     int saw_wait_for;
 } replay_t;
 
@@ -146,19 +150,19 @@ static void usage(FILE *f)
             "  --max-timeouts N      lockstep: give up after N timeouts in a row (default %d; 0 = never,\n"
             "                        to see whether the daemon recovers from a fault)\n"
             "  --channels A,B,...    publish only these channels (default: every channel in the log)\n"
-            "  --features-channel C  frames that lockstep waits for (default VISLAM_FEATURES)\n"
-            "  --pose-channel C      poses counted and awaited (default VISLAM_POSE)\n"
+            "  --features-channel C  frames that lockstep waits for (default " VL_CHANNEL_FEATURES ")\n"
+            "  --pose-channel C      poses counted and awaited (default " VL_CHANNEL_POSE ")\n"
             "  --wait-for C          before playing, wait until a message arrives on C (e.g.\n"
-            "                        VISLAM_STATUS: the daemon publishes one as soon as it is up)\n"
+            "                        " VL_CHANNEL_STATUS ": the daemon publishes one as soon as it is up)\n"
             "  --wait-timeout-ms N   how long --wait-for waits (default: --timeout-ms)\n"
             "  --linger-ms N         after the last event, keep counting poses for N ms (default 500)\n"
-            "  --imu-channel C       IMU samples whose poses count as answers (default VISLAM_IMU)\n"
-            "  --calib-channel C     the calibration re-published (default VISLAM_CALIB)\n"
+            "  --imu-channel C       IMU samples whose poses count as answers (default " VL_CHANNEL_IMU ")\n"
+            "  --calib-channel C     the calibration re-published (default " VL_CHANNEL_CALIBRATION ")\n"
             "  --calib-period-ms N   re-publish the log's latest calibration every N ms of log time,\n"
             "                        and at once after a daemon restart or a lockstep timeout, as a\n"
             "                        latched message would be (default 1000; 0 = never)\n"
             "  --status-channel C    the daemon's status: a pose count going back there is a daemon\n"
-            "                        restart, whose sequence numbers start again (default VISLAM_STATUS)\n"
+            "                        restart, whose sequence numbers start again (default " VL_CHANNEL_STATUS ")\n"
             "  --lcm-url URL         LCM provider (default: $LCM_DEFAULT_URL, else LCM's default)\n"
             "  --summary-json FILE   also write the summary as JSON\n"
             "  --quiet               no progress line and no summary on stderr\n"
@@ -184,11 +188,11 @@ static int parse_args(int argc, char **argv, options_t *o)
     o->timeout_ms = 5000;
     o->wait_timeout_ms = -1;
     o->linger_ms = 500;
-    o->pose_channel = "VISLAM_POSE";
-    o->features_channel = "VISLAM_FEATURES";
-    o->imu_channel = "VISLAM_IMU";
-    o->calib_channel = "VISLAM_CALIB";
-    o->status_channel = "VISLAM_STATUS";
+    o->pose_channel = VL_CHANNEL_POSE;
+    o->features_channel = VL_CHANNEL_FEATURES;
+    o->imu_channel = VL_CHANNEL_IMU;
+    o->calib_channel = VL_CHANNEL_CALIBRATION;
+    o->status_channel = VL_CHANNEL_STATUS;
     o->calib_period_ms = 1000;
     o->max_timeouts = MAX_CONSECUTIVE_TIMEOUTS;
     static char filter_buf[1024];
@@ -393,7 +397,8 @@ static void on_pose(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
     (void)channel;
     replay_t *r = (replay_t *)user;
     const int64_t now = vl_clock_monotonic_us();
-    if (vislam_pose_t_decode(rbuf->data, 0, (int)rbuf->data_size, &r->pose_msg) < 0) {
+    if (!vl_msg_decoded_whole(vislam_pose_t_decode(rbuf->data, 0, (int)rbuf->data_size, &r->pose_msg),
+                              (int)rbuf->data_size)) {
         r->pose_decode_errors++;
         r->poses_foreign++;
         return;
@@ -432,7 +437,8 @@ static void on_status(const lcm_recv_buf_t *rbuf, const char *channel, void *use
 {
     (void)channel;
     replay_t *r = (replay_t *)user;
-    if (vislam_status_t_decode(rbuf->data, 0, (int)rbuf->data_size, &r->status_msg) < 0) {
+    if (!vl_msg_decoded_whole(vislam_status_t_decode(rbuf->data, 0, (int)rbuf->data_size, &r->status_msg),
+                              (int)rbuf->data_size)) {
         return;
     }
     if (r->status_msg.poses_out <= r->last_sequence) {
@@ -703,18 +709,20 @@ int main(int argc, char **argv)
         const int is_frame = o->lockstep && is_frame_channel;
         int64_t frame_utime = 0;
         if (is_frame_channel) {
-            if (vislam_stereo_frame_t_decode(ev->data, 0, ev->datalen, &r->frame_msg) < 0) {
+            if (vl_log_event_decode(&r->decoder, VL_LOG_EVENT_FRAME, ev->data, ev->datalen, &r->input) !=
+                VL_LOG_EVENT_FRAME) {
                 if (o->lockstep) {
                     fprintf(stderr, "vislam-replay: event %" PRId64 " on %s is not a vislam.stereo_frame_t; not awaited\n",
                             ev->eventnum, ev->channel);
                 }
             } else {
-                frame_utime = r->frame_msg.utime;
+                frame_utime = r->input.frame.utime;
                 remember_input(r, frame_utime, VISLAM_POSE_T_SOURCE_FEATURES);
             }
         } else if (strcmp(ev->channel, o->imu_channel) == 0 &&
-                   vislam_imu_t_decode(ev->data, 0, ev->datalen, &r->imu_msg) >= 0) {
-            remember_input(r, r->imu_msg.utime, VISLAM_POSE_T_SOURCE_IMU);
+                   vl_log_event_decode(&r->decoder, VL_LOG_EVENT_IMU, ev->data, ev->datalen, &r->input) ==
+                       VL_LOG_EVENT_IMU) {
+            remember_input(r, r->input.imu.utime, VISLAM_POSE_T_SOURCE_IMU);
         }
         r->publish_mono_us = vl_clock_monotonic_us();
         if (is_frame) {

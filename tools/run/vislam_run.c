@@ -14,12 +14,14 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "vislam/vislam.h"
+#include "vl_clock.h"
 #include "vl_config_file.h"
+#include "vl_latency.h"
 #include "vl_log_reader.h"
 #include "vl_msg.h"
+#include "vl_session.h"
 #include "vl_trajectory_file.h"
 
 #define EXIT_USAGE 2
@@ -27,15 +29,6 @@
 
 /* Damage reports printed before only the counts are kept. */
 #define DAMAGE_REPORTS 5
-
-/* Statuses run from VL_ERR_CAPACITY (-7) to VL_FRAME_TRUNCATED (1). */
-#define STATUS_MIN ((int)VL_STATUS_MIN)
-#define STATUS_MAX ((int)VL_STATUS_MAX)
-#define STATUS_SLOTS (STATUS_MAX - STATUS_MIN + 1)
-
-/* Core log lines printed per level before rate limiting kicks in, then one in this many. */
-#define LOG_BURST 20
-#define LOG_EVERY 1000
 
 typedef struct {
     const char *log_path;
@@ -68,75 +61,13 @@ typedef struct {
     int oom;
 } map_t;
 
+/* What the session's sinks write to. */
 typedef struct {
-    double *us;
-    size_t count;
-    size_t capacity;
-} samples_t;
-
-typedef struct {
-    int quiet;
-    uint64_t seen[4];
-    uint64_t suppressed;
-} logger_t;
-
-typedef struct {
-    uint64_t imu_processed;            /* IMU events handed to vl_propagate */
-    uint64_t frames_processed;         /* frames handed to vl_update */
-    uint64_t trajectory_lines;         /* accepted frames written */
-    uint64_t imu_before_calibration;   /* skipped: no calibration yet */
-    uint64_t frames_before_calibration;/* skipped (an error): no calibration yet */
-    uint64_t calibrations_used;        /* calibration messages that (re)initialized the estimator */
-    uint64_t calibrations_ignored;     /* repeats, or the config file overrides the log */
-    uint64_t calibrations_changed;     /* a different calibration after inputs: ignored */
-    uint64_t calibrations_invalid;     /* rejected by vl_config_check */
-    uint64_t propagate_status[STATUS_SLOTS];
-    uint64_t update_status[STATUS_SLOTS];
-} run_stats_t;
-
-static const char *status_name(int status)
-{
-    switch (status) {
-    case VL_OK:
-        return "VL_OK";
-    case VL_FRAME_TRUNCATED:
-        return "VL_FRAME_TRUNCATED";
-    case VL_ERR_NULL:
-        return "VL_ERR_NULL";
-    case VL_ERR_CONFIG:
-        return "VL_ERR_CONFIG";
-    case VL_ERR_NOT_READY:
-        return "VL_ERR_NOT_READY";
-    case VL_ERR_NON_FINITE:
-        return "VL_ERR_NON_FINITE";
-    case VL_ERR_TIME_ORDER:
-        return "VL_ERR_TIME_ORDER";
-    case VL_ERR_NOT_POSITIVE_DEFINITE:
-        return "VL_ERR_NOT_POSITIVE_DEFINITE";
-    case VL_ERR_CAPACITY:
-        return "VL_ERR_CAPACITY";
-    case VL_ERR_MISALIGNED:
-        return "VL_ERR_MISALIGNED";
-    case VL_RESET:
-        return "VL_RESET";
-    case VL_ERR_TIME_JUMP:
-        return "VL_ERR_TIME_JUMP";
-    case VL_ERR_IMPLAUSIBLE:
-        return "VL_ERR_IMPLAUSIBLE";
-    case VL_ERR_IMU_SILENT:
-        return "VL_ERR_IMU_SILENT";
-    }
-    return "VL_STATUS_UNKNOWN";
-}
-
-static void count_status(uint64_t *slots, vl_status_t status)
-{
-    int s = (int)status;
-    if (s < STATUS_MIN || s > STATUS_MAX) {
-        s = STATUS_MIN; /* an unknown status: keep the count rather than drop it */
-    }
-    slots[s - STATUS_MIN]++;
-}
+    map_t map;
+    vl_trajectory_file_t traj;
+    FILE *cov_file;
+    uint64_t trajectory_lines;
+} sinks_t;
 
 static void usage(FILE *f)
 {
@@ -230,11 +161,11 @@ static int parse_args(int argc, char **argv, options_t *o)
     return 0;
 }
 
-/* ---- core callbacks ---- */
+/* ---- session sinks ---- */
 
 static void map_sink(void *user, const vl_landmark_t *lm)
 {
-    map_t *m = (map_t *)user;
+    map_t *m = &((sinks_t *)user)->map;
     if (m->count == m->capacity) {
         size_t cap = m->capacity == 0 ? 1024 : 2 * m->capacity;
         map_point_t *p = (map_point_t *)realloc(m->points, cap * sizeof(*p));
@@ -256,105 +187,6 @@ static void map_sink(void *user, const vl_landmark_t *lm)
     pt->first_utime = lm->first_utime;
 }
 
-static const char *level_name(vl_log_level_t level)
-{
-    switch (level) {
-    case VL_LOG_DEBUG:
-        return "DEBUG";
-    case VL_LOG_INFO:
-        return "INFO";
-    case VL_LOG_WARN:
-        return "WARN";
-    case VL_LOG_ERROR:
-        return "ERROR";
-    }
-    return "?";
-}
-
-static void core_log(void *user, vl_log_level_t level, int64_t utime, const char *message)
-{
-    logger_t *lg = (logger_t *)user;
-    if (level < VL_LOG_WARN || (lg->quiet && level < VL_LOG_ERROR)) {
-        return;
-    }
-    int l = (int)level & 3;
-    uint64_t n = ++lg->seen[l];
-    /* Rate limit by count, not by wall time, so what is printed is reproducible too. */
-    if (n > LOG_BURST && n % LOG_EVERY != 0) {
-        lg->suppressed++;
-        return;
-    }
-    fprintf(stderr, "vislam-run: core %s at utime %lld: %s%s\n", level_name(level), (long long)utime,
-            message != NULL ? message : "", n > LOG_BURST ? " (rate limited)" : "");
-}
-
-/* ---- timing ---- */
-
-static double now_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec * 1e-3;
-}
-
-static void samples_add(samples_t *s, double us)
-{
-    if (s->count == s->capacity) {
-        size_t cap = s->capacity == 0 ? 4096 : 2 * s->capacity;
-        double *p = (double *)realloc(s->us, cap * sizeof(*p));
-        if (p == NULL) {
-            return; /* timing is best effort */
-        }
-        s->us = p;
-        s->capacity = cap;
-    }
-    s->us[s->count++] = us;
-}
-
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a;
-    double y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-typedef struct {
-    size_t count;
-    double median, p99, p999, max;
-} timing_summary_t;
-
-/* Nearest-rank percentile of sorted samples. */
-static double percentile(const double *sorted, size_t n, double q)
-{
-    if (n == 0) {
-        return 0.0;
-    }
-    size_t rank = (size_t)ceil(q * (double)n);
-    if (rank < 1) {
-        rank = 1;
-    }
-    if (rank > n) {
-        rank = n;
-    }
-    return sorted[rank - 1];
-}
-
-static timing_summary_t summarize(samples_t *s)
-{
-    timing_summary_t t;
-    memset(&t, 0, sizeof(t));
-    t.count = s->count;
-    if (s->count == 0) {
-        return t;
-    }
-    qsort(s->us, s->count, sizeof(double), cmp_double);
-    t.median = percentile(s->us, s->count, 0.5);
-    t.p99 = percentile(s->us, s->count, 0.99);
-    t.p999 = percentile(s->us, s->count, 0.999);
-    t.max = s->us[s->count - 1];
-    return t;
-}
-
 /* ---- outputs ---- */
 
 /* One line per pose: the time exactly as the TUM writer prints it, so the two files pair by
@@ -368,6 +200,21 @@ static void write_covariance_line(FILE *f, int64_t utime, const vl_pose_t *pose)
         fprintf(f, " %.9g", pose->covariance[i * 6 + i]);
     }
     fputc('\n', f);
+}
+
+/* Session sink: one TUM line (and covariance line) per frame the core used. */
+static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t sequence, const vl_pose_t *pose)
+{
+    sinks_t *k = (sinks_t *)user;
+    (void)sequence;
+    if (step != VL_SESSION_STEP_UPDATE) {
+        return;
+    }
+    vl_trajectory_write(&k->traj, utime, pose);
+    if (k->cov_file != NULL) {
+        write_covariance_line(k->cov_file, utime, pose);
+    }
+    k->trajectory_lines++;
 }
 
 static int write_ply(const char *path, const map_t *m)
@@ -421,25 +268,17 @@ static void json_string(FILE *f, const char *s)
     fputc('"', f);
 }
 
-typedef struct {
-    const char *name;
-    uint64_t value;
-} named_count_t;
+typedef vl_counter_entry_t named_count_t;
 
 /* The core counters in declaration order. */
 static size_t core_counter_list(const vl_counters_t *c, named_count_t *out)
 {
-    vl_counter_entry_t entries[VL_NUM_COUNTERS];
-    const size_t n = vl_counters_list(c, entries);
-    for (size_t i = 0; i < n; ++i) {
-        out[i].name = entries[i].name;
-        out[i].value = entries[i].value;
-    }
-    return n;
+    return vl_counters_list(c, out);
 }
 
-static size_t run_counter_list(const run_stats_t *r, const vl_log_reader_stats_t *rs, int truncated,
-                               named_count_t *out)
+/* The log reader's counts, then the session's (named once, in vl_session.h), then the lines written. */
+static size_t run_counter_list(const vl_session_t *ss, const vl_log_reader_stats_t *rs, int truncated,
+                               uint64_t trajectory_lines, named_count_t *out)
 {
     size_t n = 0;
 #define RUN_COUNT(label, expr) out[n].name = label, out[n].value = (uint64_t)(expr), ++n
@@ -452,17 +291,11 @@ static size_t run_counter_list(const run_stats_t *r, const vl_log_reader_stats_t
     RUN_COUNT("log_corrupt", rs->corrupt);
     RUN_COUNT("log_bytes_skipped", rs->bytes_skipped);
     RUN_COUNT("log_truncated", truncated);
-    RUN_COUNT("imu_processed", r->imu_processed);
-    RUN_COUNT("frames_processed", r->frames_processed);
-    RUN_COUNT("trajectory_lines", r->trajectory_lines);
-    RUN_COUNT("imu_before_calibration", r->imu_before_calibration);
-    RUN_COUNT("frames_before_calibration", r->frames_before_calibration);
-    RUN_COUNT("calibrations_used", r->calibrations_used);
-    RUN_COUNT("calibrations_ignored", r->calibrations_ignored);
-    RUN_COUNT("calibrations_changed", r->calibrations_changed);
-    RUN_COUNT("calibrations_invalid", r->calibrations_invalid);
 #undef RUN_COUNT
-    return n;
+    n += vl_session_counter_list(ss, out + n);
+    out[n].name = "trajectory_lines";
+    out[n].value = trajectory_lines;
+    return n + 1;
 }
 
 static void json_counts(FILE *f, const char *indent, const named_count_t *c, size_t n)
@@ -472,52 +305,58 @@ static void json_counts(FILE *f, const char *indent, const named_count_t *c, siz
     }
 }
 
-static void json_status(FILE *f, const char *name, const uint64_t *slots, int last)
+/* Statuses a core call returned, keyed by vl_status_str. */
+static void json_status(FILE *f, const char *name, const vl_session_t *ss, int update, int last)
 {
     fprintf(f, "    \"%s\": {", name);
     int first = 1;
-    for (int s = STATUS_MIN; s <= STATUS_MAX; ++s) {
-        uint64_t v = slots[s - STATUS_MIN];
+    for (int s = (int)VL_STATUS_MIN; s <= (int)VL_STATUS_MAX; ++s) {
+        const uint64_t v = vl_session_status_count(ss, update, (vl_status_t)s);
         if (v != 0) {
-            fprintf(f, "%s\"%s\": %llu", first ? "" : ", ", status_name(s), (unsigned long long)v);
+            fprintf(f, "%s", first ? "" : ", ");
+            json_string(f, vl_status_str((vl_status_t)s));
+            fprintf(f, ": %llu", (unsigned long long)v);
             first = 0;
         }
     }
     fprintf(f, "}%s\n", last ? "" : ",");
 }
 
-static void json_timing(FILE *f, const char *name, const timing_summary_t *t, int last)
+static void json_timing(FILE *f, const char *name, const vl_latency_t *t, int last)
 {
     fprintf(f,
-            "    \"%s\": {\"count\": %zu, \"median_us\": %.3f, \"p99_us\": %.3f, \"p999_us\": %.3f, "
-            "\"max_us\": %.3f}%s\n",
-            name, t->count, t->median, t->p99, t->p999, t->max, last ? "" : ",");
+            "    \"%s\": {\"count\": %llu, \"median_us\": %lld, \"p99_us\": %lld, \"p999_us\": %lld, "
+            "\"max_us\": %lld}%s\n",
+            name, (unsigned long long)vl_latency_count(t), (long long)vl_latency_percentile(t, 50.0),
+            (long long)vl_latency_percentile(t, 99.0), (long long)vl_latency_percentile(t, 99.9),
+            (long long)vl_latency_max(t), last ? "" : ",");
 }
 
-static int write_stats_json(const char *path, const options_t *o, const vl_config_t *cfg, const char *calib_source,
-                            const run_stats_t *run, const vl_log_reader_stats_t *rs, int truncated,
-                            const vl_counters_t *counters, size_t landmarks_mapped, const timing_summary_t *t_update,
-                            const timing_summary_t *t_propagate)
+static int write_stats_json(const char *path, const options_t *o, const vl_session_t *ss,
+                            const vl_log_reader_stats_t *rs, int truncated, const sinks_t *k,
+                            const vl_latency_t *t_update, const vl_latency_t *t_propagate)
 {
+    const vl_config_t *cfg = vl_session_config(ss);
     FILE *f = fopen(path, "w");
     if (f == NULL) {
         fprintf(stderr, "vislam-run: cannot write stats %s: %s\n", path, strerror(errno));
         return -1;
     }
-    named_count_t list[32];
+    named_count_t list[64];
     fprintf(f, "{\n  \"log\": ");
     json_string(f, o->log_path);
     fprintf(f, ",\n  \"mode\": \"%s\",\n  \"max_landmarks\": %u,\n", vl_mode_name(cfg->mode),
             (unsigned)cfg->max_landmarks);
-    fprintf(f, "  \"calibration_source\": \"%s\",\n", calib_source);
-    fprintf(f, "  \"landmarks_mapped\": %zu,\n", landmarks_mapped);
+    fprintf(f, "  \"calibration_source\": \"%s\",\n", vl_session_calibration_source(ss));
+    fprintf(f, "  \"landmarks_mapped\": %zu,\n", k->map.count);
+    fprintf(f, "  \"health\": %d,\n", (int)vl_session_health(ss));
     fprintf(f, "  \"run\": {\n");
-    json_counts(f, "    ", list, run_counter_list(run, rs, truncated, list));
+    json_counts(f, "    ", list, run_counter_list(ss, rs, truncated, k->trajectory_lines, list));
     fprintf(f, "  },\n  \"core_counters\": {\n");
-    json_counts(f, "    ", list, core_counter_list(counters, list));
+    json_counts(f, "    ", list, core_counter_list(vl_session_core_counters(ss), list));
     fprintf(f, "  },\n  \"core_status\": {\n");
-    json_status(f, "vl_propagate", run->propagate_status, 0);
-    json_status(f, "vl_update", run->update_status, 1);
+    json_status(f, "vl_propagate", ss, 0, 0);
+    json_status(f, "vl_update", ss, 1, 1);
     fprintf(f, "  }");
     if (o->timing) {
         fprintf(f, ",\n  \"timing\": {\n");
@@ -597,22 +436,16 @@ int main(int argc, char **argv)
         return 0;
     }
 
-    static map_t map;
-    static logger_t logger;
-    static run_stats_t run;
-    static samples_t t_update;
-    static samples_t t_propagate;
+    static sinks_t sinks;
+    static vl_session_t session;
+    static vl_latency_t t_update;
+    static vl_latency_t t_propagate;
     static vl_log_reader_t reader;
     static vl_log_event_t ev;
+    vl_latency_reset(&t_update);
+    vl_latency_reset(&t_propagate);
 
-    logger.quiet = o.quiet;
-    cfg.landmark_sink = map_sink;
-    cfg.landmark_sink_user = &map;
-    cfg.log = core_log;
-    cfg.log_user = &logger;
-
-    /* Several MB: heap, once. */
-    /* aligned as vl_init requires: see VL_ESTIMATOR_ALIGN */
+    /* Several MB: heap, once, aligned as vl_init requires (VL_ESTIMATOR_ALIGN). */
     const size_t est_bytes = (sizeof(vl_estimator_t) + VL_ESTIMATOR_ALIGN - 1) / VL_ESTIMATOR_ALIGN * VL_ESTIMATOR_ALIGN;
     void *est_mem = NULL;
     vl_estimator_t *est = NULL;
@@ -632,242 +465,146 @@ int main(int argc, char **argv)
         return 1;
     }
     /* The writer vislamd uses too, so both programs print identical lines. */
-    static vl_trajectory_file_t traj;
-    if (vl_trajectory_open(&traj, o.trajectory_path, err, sizeof(err)) != 0) {
+    if (vl_trajectory_open(&sinks.traj, o.trajectory_path, err, sizeof(err)) != 0) {
         fprintf(stderr, "vislam-run: %s\n", err);
         vl_log_reader_close(&reader);
         free(est);
         return 1;
     }
-
-    FILE *cov_file = NULL;
     if (o.covariance_path != NULL) {
-        cov_file = fopen(o.covariance_path, "w");
-        if (cov_file == NULL) {
+        sinks.cov_file = fopen(o.covariance_path, "w");
+        if (sinks.cov_file == NULL) {
             fprintf(stderr, "vislam-run: cannot write covariance %s: %s\n", o.covariance_path, strerror(errno));
-            vl_trajectory_close(&traj);
+            vl_trajectory_close(&sinks.traj);
             vl_log_reader_close(&reader);
             free(est);
             return 1;
         }
     }
 
-    int initialized = 0;
-    int inputs_fed = 0; /* once inputs reached the estimator, a new calibration cannot restart it */
-    const char *calib_source = "none";
-    if (info.has_calibration) {
-        /* The file's rig is used from the start; unless override_log, a log calibration
-           that arrives before any input replaces it. */
-        if (vl_init(est, &cfg) != VL_OK) {
-            fprintf(stderr, "vislam-run: vl_init refused the configuration\n");
-            if (cov_file != NULL) {
-                fclose(cov_file);
-            }
-            vl_trajectory_close(&traj);
-            vl_log_reader_close(&reader);
-            free(est);
-            return EXIT_USAGE;
+    vl_session_options_t so;
+    memset(&so, 0, sizeof(so));
+    so.program = "vislam-run";
+    so.quiet = o.quiet;
+    so.config_has_calibration = info.has_calibration;
+    so.override_log = info.override_log;
+    so.callbacks.on_pose = on_pose;
+    so.callbacks.on_landmark = map_sink;
+    so.callbacks.user = &sinks;
+    if (vl_session_init(&session, est, &cfg, &so) != VL_OK) {
+        fprintf(stderr, "vislam-run: vl_init refused the configuration\n");
+        if (sinks.cov_file != NULL) {
+            fclose(sinks.cov_file);
         }
-        initialized = 1;
-        calib_source = "config";
+        vl_trajectory_close(&sinks.traj);
+        vl_log_reader_close(&reader);
+        free(est);
+        return EXIT_USAGE;
     }
 
     vl_log_event_kind_t kind;
     while ((kind = vl_log_reader_next(&reader, &ev)) != VL_LOG_EVENT_END) {
-        switch (kind) {
-        case VL_LOG_EVENT_CALIBRATION: {
-            if (info.override_log) {
-                run.calibrations_ignored++;
-                break;
-            }
-            if (initialized && vl_calibration_equal(&cfg.calibration, &ev.calibration)) {
-                /* Nothing to redo; the first one still counts as the rig's source. */
-                if (strcmp(calib_source, "log") != 0) {
-                    calib_source = "log";
-                    run.calibrations_used++;
-                } else {
-                    run.calibrations_ignored++;
-                }
-                break;
-            }
-            if (inputs_fed) {
-                run.calibrations_changed++;
-                if (!o.quiet && run.calibrations_changed == 1) {
-                    fprintf(stderr, "vislam-run: event %lld: calibration changed after inputs; ignored\n",
-                            (long long)ev.event_number);
-                }
-                break;
-            }
-            vl_config_t candidate = cfg;
-            candidate.calibration = ev.calibration;
-            if (vl_config_check(&candidate) != VL_OK || vl_init(est, &candidate) != VL_OK) {
-                run.calibrations_invalid++;
-                fprintf(stderr, "vislam-run: event %lld: calibration message rejected by vl_config_check\n",
-                        (long long)ev.event_number);
-                break;
-            }
-            cfg = candidate;
-            initialized = 1;
-            calib_source = "log";
-            run.calibrations_used++;
-            break;
-        }
-        case VL_LOG_EVENT_IMU: {
-            if (!initialized) {
-                run.imu_before_calibration++;
-                break;
-            }
-            inputs_fed = 1;
-            double t0 = o.timing ? now_us() : 0.0;
-            vl_status_t s = vl_propagate(est, &ev.imu);
-            if (o.timing) {
-                samples_add(&t_propagate, now_us() - t0);
-            }
-            count_status(run.propagate_status, s);
-            run.imu_processed++;
-            break;
-        }
-        case VL_LOG_EVENT_FRAME: {
-            if (!initialized) {
-                run.frames_before_calibration++;
-                if (run.frames_before_calibration == 1) {
-                    fprintf(stderr, "vislam-run: event %lld: frame before any calibration; skipped\n",
-                            (long long)ev.event_number);
-                }
-                break;
-            }
-            inputs_fed = 1;
-            double t0 = o.timing ? now_us() : 0.0;
-            vl_status_t s = vl_update(est, &ev.frame);
-            if (o.timing) {
-                samples_add(&t_update, now_us() - t0);
-            }
-            count_status(run.update_status, s);
-            run.frames_processed++;
-            if (s >= 0) { /* used: VL_OK, or an event (truncated, re-initialized) */
-                vl_pose_t pose;
-                if (vl_get_pose(est, &pose) == VL_OK) {
-                    vl_trajectory_write(&traj, ev.frame.utime, &pose);
-                    if (cov_file != NULL) {
-                        write_covariance_line(cov_file, ev.frame.utime, &pose);
-                    }
-                    run.trajectory_lines++;
-                }
-            }
-            break;
-        }
-        case VL_LOG_EVENT_DECODE_ERROR: {
+        if (kind == VL_LOG_EVENT_DECODE_ERROR || kind == VL_LOG_EVENT_CORRUPT) {
             const vl_log_reader_stats_t *rs = vl_log_reader_stats(&reader);
-            if (rs->decode_errors <= DAMAGE_REPORTS) {
+            if (kind == VL_LOG_EVENT_DECODE_ERROR && rs->decode_errors <= DAMAGE_REPORTS) {
                 fprintf(stderr, "vislam-run: %s\n", ev.error);
-            }
-            break;
-        }
-        case VL_LOG_EVENT_CORRUPT: {
-            const vl_log_reader_stats_t *rs = vl_log_reader_stats(&reader);
-            if (rs->corrupt <= DAMAGE_REPORTS) {
+            } else if (kind == VL_LOG_EVENT_CORRUPT && rs->corrupt <= DAMAGE_REPORTS) {
                 fprintf(stderr, "vislam-run: %s: %s\n", o.log_path, ev.error);
             }
-            break;
         }
-        case VL_LOG_EVENT_END:
-            break;
+        const int64_t t0 = o.timing ? vl_clock_monotonic_us() : 0;
+        const vl_session_step_t step = vl_session_input(&session, &ev, NULL);
+        if (o.timing && step != VL_SESSION_STEP_NONE) {
+            vl_latency_record(step == VL_SESSION_STEP_UPDATE ? &t_update : &t_propagate, vl_clock_monotonic_us() - t0);
         }
     }
-    if (initialized) {
-        vl_flush_landmarks(est);
-    }
+    vl_session_flush(&session);
 
     int io_error = 0;
-    if (vl_trajectory_close(&traj) != 0) {
+    if (vl_trajectory_close(&sinks.traj) != 0) {
         fprintf(stderr, "vislam-run: write error on trajectory %s\n", o.trajectory_path);
         io_error = 1;
     }
-    if (cov_file != NULL) {
-        int bad = ferror(cov_file);
-        if (fclose(cov_file) != 0 || bad) {
+    if (sinks.cov_file != NULL) {
+        int bad = ferror(sinks.cov_file);
+        if (fclose(sinks.cov_file) != 0 || bad) {
             fprintf(stderr, "vislam-run: write error on covariance %s\n", o.covariance_path);
             io_error = 1;
         }
     }
-    if (map.oom) {
+    if (sinks.map.oom) {
         fprintf(stderr, "vislam-run: out of memory collecting the map; it is incomplete\n");
         io_error = 1;
     }
-    if (o.map_path != NULL && write_ply(o.map_path, &map) != 0) {
+    if (o.map_path != NULL && write_ply(o.map_path, &sinks.map) != 0) {
         io_error = 1;
     }
 
-    static vl_counters_t zero_counters;
-    const vl_counters_t *counters = initialized ? vl_get_counters(est) : &zero_counters;
     const vl_log_reader_stats_t *rs = vl_log_reader_stats(&reader);
     const int truncated = vl_log_reader_truncated(&reader);
-    timing_summary_t tu = summarize(&t_update);
-    timing_summary_t tp = summarize(&t_propagate);
+    const vl_session_counters_t *n = vl_session_counters(&session);
 
     if (o.stats_path != NULL &&
-        write_stats_json(o.stats_path, &o, &cfg, calib_source, &run, rs, truncated, counters, map.count, &tu, &tp) !=
-            0) {
+        write_stats_json(o.stats_path, &o, &session, rs, truncated, &sinks, &t_update, &t_propagate) != 0) {
         io_error = 1;
     }
 
     if (!o.quiet) {
-        named_count_t list[32];
+        named_count_t list[64];
+        const vl_config_t *used = vl_session_config(&session);
         fprintf(stderr, "vislam-run: %s (mode %s, window %u, calibration from %s)\n", o.log_path,
-                vl_mode_name(cfg.mode), (unsigned)cfg.max_landmarks, calib_source);
+                vl_mode_name(used->mode), (unsigned)used->max_landmarks, vl_session_calibration_source(&session));
+        const uint64_t imu_steps = n->imu_used + n->imu_rejected;
+        const uint64_t frame_steps = n->frames_used + n->frames_rejected;
         fprintf(stderr, "  steps %llu (imu %llu, frames %llu), trajectory lines %llu, landmarks mapped %zu\n",
-                (unsigned long long)(run.imu_processed + run.frames_processed),
-                (unsigned long long)run.imu_processed, (unsigned long long)run.frames_processed,
-                (unsigned long long)run.trajectory_lines, map.count);
-        size_t n = run_counter_list(&run, rs, truncated, list);
+                (unsigned long long)(imu_steps + frame_steps), (unsigned long long)imu_steps,
+                (unsigned long long)frame_steps, (unsigned long long)sinks.trajectory_lines, sinks.map.count);
+        size_t k = run_counter_list(&session, rs, truncated, sinks.trajectory_lines, list);
         fprintf(stderr, "  run:");
-        for (size_t i = 0; i < n; ++i) {
+        for (size_t i = 0; i < k; ++i) {
             if (list[i].value != 0) {
                 fprintf(stderr, " %s %llu", list[i].name, (unsigned long long)list[i].value);
             }
         }
         fprintf(stderr, "\n  core:");
-        if (!initialized) {
+        if (!vl_session_initialized(&session)) {
             fprintf(stderr, " (estimator never initialized)");
         }
-        n = core_counter_list(counters, list);
-        for (size_t i = 0; i < n; ++i) {
+        k = core_counter_list(vl_session_core_counters(&session), list);
+        for (size_t i = 0; i < k; ++i) {
             if (list[i].value != 0) {
                 fprintf(stderr, " %s %llu", list[i].name, (unsigned long long)list[i].value);
             }
         }
-        fprintf(stderr, "\n");
+        fprintf(stderr, "\n  health over the run: 0x%x (vislam.status_t HEALTH_* bits)\n",
+                (unsigned)vl_session_health(&session));
         vl_pose_t last;
-        if (initialized && vl_get_pose(est, &last) == VL_OK) {
+        const vl_estimator_t *e = vl_session_estimator(&session);
+        if (e != NULL && vl_get_pose(e, &last) == VL_OK) {
             fprintf(stderr, "  noise in use: linear_velocity %.3g m/s, angular_velocity %.3g rad/s, pixel %.3g px\n",
                     last.linear_velocity_noise, last.angular_velocity_noise, last.pixel_noise);
         }
         for (int which = 0; which < 2; ++which) {
-            const uint64_t *slots = which == 0 ? run.propagate_status : run.update_status;
-            for (int s = STATUS_MIN; s <= STATUS_MAX; ++s) {
-                if (s != VL_OK && slots[s - STATUS_MIN] != 0) {
-                    fprintf(stderr, "  %s returned %s x%llu (%s)\n", which == 0 ? "vl_propagate" : "vl_update",
-                            status_name(s), (unsigned long long)slots[s - STATUS_MIN],
-                            vl_status_str((vl_status_t)s));
+            for (int s = (int)VL_STATUS_MIN; s <= (int)VL_STATUS_MAX; ++s) {
+                const uint64_t v = vl_session_status_count(&session, which, (vl_status_t)s);
+                if (s != VL_OK && v != 0) {
+                    fprintf(stderr, "  %s returned %d x%llu (%s)\n", which == 0 ? "vl_propagate" : "vl_update", s,
+                            (unsigned long long)v, vl_status_str((vl_status_t)s));
                 }
             }
         }
         if (truncated) {
             fprintf(stderr, "  warning: the log ends inside an event (cut)\n");
         }
-        if (logger.suppressed != 0) {
+        if (vl_session_log_suppressed(&session) != 0) {
             fprintf(stderr, "  core log lines suppressed by the rate limit: %llu\n",
-                    (unsigned long long)logger.suppressed);
+                    (unsigned long long)vl_session_log_suppressed(&session));
         }
     }
     if (o.timing) {
-        fprintf(stderr, "  timing (wall, us)      count     median        p99      p99.9        max\n");
-        const char *names[2] = {"vl_update", "vl_propagate"};
-        const timing_summary_t *ts[2] = {&tu, &tp};
-        for (int i = 0; i < 2; ++i) {
-            fprintf(stderr, "  %-20s %8zu %10.1f %10.1f %10.1f %10.1f\n", names[i], ts[i]->count, ts[i]->median,
-                    ts[i]->p99, ts[i]->p999, ts[i]->max);
-        }
+        fprintf(stderr, "  step time (CLOCK_MONOTONIC, us; vl_latency buckets, <= 6.25%% above the true value):\n");
+        vl_latency_print(&t_update, stderr, "    vl_update   ");
+        vl_latency_print(&t_propagate, stderr, "    vl_propagate");
     }
 
     /* Said even with --quiet: a damaged log must not pass for a clean one. */
@@ -881,9 +618,7 @@ int main(int argc, char **argv)
                 rs->events == 0 ? "; no event at all (empty or not an LCM log)" : "");
     }
     vl_log_reader_close(&reader);
-    free(map.points);
-    free(t_update.us);
-    free(t_propagate.us);
+    free(sinks.map.points);
     free(est);
 
     if (io_error) {
@@ -892,7 +627,7 @@ int main(int argc, char **argv)
     if (damaged) {
         return EXIT_LOG_DAMAGED;
     }
-    if (run.trajectory_lines == 0) {
+    if (sinks.trajectory_lines == 0) {
         fprintf(stderr, "vislam-run: no frame could be processed\n");
         return 1;
     }

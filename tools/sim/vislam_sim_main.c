@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "vl_channels.h"
 #include "vl_msg.h"
 #include "vl_sim.h"
 #include "vl_trajectory_file.h"
@@ -290,7 +291,7 @@ int main(int argc, char **argv)
     vl_msg_from_calibration(&cfg.calibration, cfg.start_utime, &calib_msg);
     {
         const int len = vislam_calibration_t_encode(g_buf, 0, (int)sizeof(g_buf), &calib_msg);
-        if (len < 0 || write_event(log, "VISLAM_CALIB", calib_msg.utime, len) != 0) {
+        if (len < 0 || write_event(log, VL_CHANNEL_CALIBRATION, calib_msg.utime, len) != 0) {
             fprintf(stderr, "vislam-sim: writing %s failed\n", out_path);
             rc = 1;
         }
@@ -306,14 +307,14 @@ int main(int argc, char **argv)
         }
         vl_msg_from_imu(&imu, &imu_msg);
         len = vislam_imu_t_encode(g_buf, 0, (int)sizeof(g_buf), &imu_msg);
-        if (len < 0 || write_event(log, "VISLAM_IMU", imu_msg.utime, len) != 0) {
+        if (len < 0 || write_event(log, VL_CHANNEL_IMU, imu_msg.utime, len) != 0) {
             rc = 1;
             break;
         }
 
         vl_msg_from_stereo_frame(&g_frame, &g_msg_frame); /* zeroes the unused slots */
         len = vislam_stereo_frame_t_encode(g_buf, 0, (int)sizeof(g_buf), &g_msg_frame);
-        if (len < 0 || write_event(log, "VISLAM_FEATURES", g_msg_frame.utime, len) != 0) {
+        if (len < 0 || write_event(log, VL_CHANNEL_FEATURES, g_msg_frame.utime, len) != 0) {
             rc = 1;
             break;
         }

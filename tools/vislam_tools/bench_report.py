@@ -251,9 +251,16 @@ def _daemon_summary(path):
     m = re.search(r"budget (\d+) us[^:]*: (\d+) overrun\(s\) in (\d+) steps", text)
     if m:
         d["budget_us"], d["overruns"], d["steps"] = (int(x) for x in m.groups())
-    m = re.search(r"heap allocations after start-up: (\d+) in the process, (\d+) in the main", text)
-    if m:
-        d["alloc_process"], d["alloc_main"] = int(m.group(1)), int(m.group(2))
+    # The LD_PRELOAD counter's own report beside the daemon's log (VL_ALLOC_REPORT, "key value" lines).
+    alloc = {}
+    try:
+        with open(os.path.splitext(path)[0] + ".alloc") as f:
+            alloc = dict(line.split(None, 1) for line in f if line.strip())
+    except (OSError, ValueError):
+        pass
+    if alloc.get("alloc.armed", "").strip() == "1":
+        d["alloc_process"] = int(alloc["alloc.process_after_arm"])
+        d["alloc_main"] = int(alloc["alloc.armed_thread_after_arm"])
     m = re.search(r"timeline changes (\d+), divergence resets (\d+)", text)
     if m:
         d["timeline_changes"], d["divergence_resets"] = int(m.group(1)), int(m.group(2))

@@ -11,17 +11,17 @@
  * received through lcm_subscribe's raw handler and decoded into static storage
  * (the message types are fixed-size), poses are encoded into static buffers and
  * sent with lcm_publish, and every step is timed with CLOCK_MONOTONIC into
- * fixed-memory histograms. Whether that holds, LCM included, is measured when
- * an allocation counter exposing vl_alloc_count() is preloaded (tests/support).
+ * fixed-memory histograms. Memory is locked as the last step of start-up.
+ * Whether the loop allocates, LCM included, is measured from outside by a
+ * preloaded counter (tests/support/vl_alloc_counter.c); the daemon knows
+ * nothing of it.
  *
- * Calibration handling follows vislam-run exactly (the config file's
- * [calibration] first, replaced by the log's message unless override_log, a
- * different calibration after inputs is ignored), so a lockstep replay gives
- * the same trajectory as the offline run.
+ * Between the messages and the core sits the session (vl_session): the
+ * calibration policy, counters, health bits and core logger that vislam-run
+ * uses too, so a lockstep replay gives the same trajectory as the offline run.
  */
-#define _GNU_SOURCE /* RTLD_DEFAULT */
+#define _POSIX_C_SOURCE 200809L
 
-#include <dlfcn.h>
 #include <errno.h>
 #include <inttypes.h>
 #include <poll.h>
@@ -35,12 +35,14 @@
 #include <lcm/lcm.h>
 
 #include "vislam/vislam.h"
+#include "vl_channels.h"
 #include "vl_clock.h"
 #include "vl_config_file.h"
 #include "vl_latency.h"
 #include "vl_log_reader.h"
 #include "vl_msg.h"
 #include "vl_rt.h"
+#include "vl_session.h"
 #include "vl_signal.h"
 #include "vl_trajectory_file.h"
 
@@ -81,28 +83,16 @@ typedef struct {
 
 enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_COUNT };
 
-static const char *const channel_default[CH_COUNT] = {"VISLAM_IMU",  "VISLAM_FEATURES", "VISLAM_CALIB",
-                                                      "VISLAM_POSE", "POSE",            "VISLAM_STATUS"};
+static const char *const channel_default[CH_COUNT] = {VL_CHANNEL_IMU,  VL_CHANNEL_FEATURES,  VL_CHANNEL_CALIBRATION,
+                                                      VL_CHANNEL_POSE, VL_CHANNEL_BOT_POSE, VL_CHANNEL_STATUS};
 static const char *const channel_option[CH_COUNT] = {"--imu-channel",  "--features-channel", "--calib-channel",
                                                      "--pose-channel", "--bot-pose-channel", "--status-channel"};
 
 typedef enum { STEP_PROPAGATE = 0, STEP_UPDATE = 1 } step_kind_t;
 
-typedef uint64_t (*alloc_count_fn)(void);
-typedef void (*alloc_arm_fn)(void);
-
+/* The daemon's own counts; the inputs' are the session's (vl_session_counters). */
 typedef struct {
-    /* counts of messages */
-    uint64_t imu_in, frames_in, calib_in;
-    uint64_t decode_errors;          /* payloads that did not decode, or a frame with a bad count */
-    uint64_t imu_waiting, frames_waiting; /* refused: no calibration yet */
-    uint64_t imu_rejected, frames_rejected; /* refused by the core */
-    uint64_t time_refused;           /* of those, for their time (VL_ERR_TIME_ORDER, VL_ERR_TIME_JUMP) */
-    uint64_t used;                   /* inputs the core used (status >= 0) */
-    uint64_t reset_events;           /* VL_RESET returned: re-initializations, each with an immediate status */
-    uint64_t calib_used, calib_ignored, calib_changed, calib_invalid;
-    uint64_t poses_out, bot_poses_out, status_out, publish_errors;
-    uint64_t poses_withheld;         /* vl_get_pose refused a non-finite pose: nothing published */
+    uint64_t bot_poses_out, status_out, publish_errors;
     uint64_t trajectory_errors;
     /* timing */
     uint64_t steps, overruns;
@@ -115,23 +105,15 @@ typedef struct {
 
     vl_config_t cfg;
     vl_config_file_info_t info;
-    int initialized;
-    int inputs_fed;
-    const char *calib_source;
+    vl_session_t session;
 
     counts_t n;
-    int64_t last_input_utime;
 
-    /* decoding storage and core inputs */
-    vislam_imu_t imu_msg;
-    vislam_stereo_frame_t frame_msg;
-    vislam_calibration_t calib_msg;
-    vl_imu_sample_t imu;
-    vl_stereo_frame_t frame;
-    vl_calibration_t calib;
+    /* decoding storage: one input event at a time */
+    vl_log_decoder_t decoder;
+    vl_log_event_t ev;
 
     /* outputs */
-    vl_pose_t pose;
     vislam_pose_t pose_msg;
     bot_core_pose_t bot_msg;
     vislam_status_t status_msg;
@@ -150,14 +132,7 @@ typedef struct {
     int have_prev_imu;
     int64_t last_overrun_log_us;
     uint64_t overruns_unlogged;
-    /* "since the last status" marks for the health bits */
-    uint64_t overruns_at_status, rejected_at_status, time_refused_at_status, used_at_status, inputs_at_status;
-    vl_counters_t core_at_status;
-
-    /* allocation counter (LD_PRELOAD), when present */
-    alloc_count_fn alloc_count;
-    alloc_count_fn alloc_count_main; /* the main thread's allocations since vl_alloc_arm */
-    uint64_t alloc_baseline;
+    uint64_t overruns_at_status; /* "since the last status" for BUDGET_OVERRUN */
 } daemon_t;
 
 /* Several MB (the estimator): static, so it is mapped and locked with the rest at start-up. */
@@ -170,12 +145,12 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: vislamd [options]\n"
-            "Runs the vislam estimator on LCM messages: subscribes to VISLAM_IMU, VISLAM_FEATURES and\n"
-            "VISLAM_CALIB, publishes VISLAM_POSE and POSE (bot_core.pose_t) after every step and\n"
-            "VISLAM_STATUS once a second. Stops on SIGINT or SIGTERM after the current step.\n"
+            "Runs the vislam estimator on LCM messages: subscribes to " VL_CHANNEL_IMU ", " VL_CHANNEL_FEATURES " and\n"
+            VL_CHANNEL_CALIBRATION ", publishes " VL_CHANNEL_POSE " and " VL_CHANNEL_BOT_POSE " (bot_core.pose_t) after every step and\n"
+            VL_CHANNEL_STATUS " once a second. Stops on SIGINT or SIGTERM after the current step.\n"
             "\n"
             "  --config FILE           INI configuration on top of the defaults (see tools/vislam.ini);\n"
-            "                          its [calibration] is used until the VISLAM_CALIB message arrives\n"
+            "                          its [calibration] is used until the " VL_CHANNEL_CALIBRATION " message arrives\n"
             "                          (or always, with override_log = true)\n"
             "  --lcm-url URL           LCM provider, e.g. udpm://239.255.76.67:7667?ttl=0\n"
             "                          (default: $LCM_DEFAULT_URL, else LCM's default)\n"
@@ -188,12 +163,12 @@ static void usage(FILE *f)
             "  --cpu K                 pin to CPU K (a refusal is a warning)\n"
             "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
             "  --channel-prefix P      prefix every channel name below with P\n"
-            "  --imu-channel NAME      default VISLAM_IMU\n"
-            "  --features-channel NAME default VISLAM_FEATURES\n"
-            "  --calib-channel NAME    default VISLAM_CALIB\n"
-            "  --pose-channel NAME     default VISLAM_POSE\n"
-            "  --bot-pose-channel NAME default POSE\n"
-            "  --status-channel NAME   default VISLAM_STATUS\n"
+            "  --imu-channel NAME      default " VL_CHANNEL_IMU "\n"
+            "  --features-channel NAME default " VL_CHANNEL_FEATURES "\n"
+            "  --calib-channel NAME    default " VL_CHANNEL_CALIBRATION "\n"
+            "  --pose-channel NAME     default " VL_CHANNEL_POSE "\n"
+            "  --bot-pose-channel NAME default " VL_CHANNEL_BOT_POSE "\n"
+            "  --status-channel NAME   default " VL_CHANNEL_STATUS "\n"
             "  --quiet                 only warnings and errors on stderr (no periodic status line, no\n"
             "                          exit summary)\n"
             "  --print-config          print the effective configuration (INI, as vislam-run) and exit\n"
@@ -327,46 +302,6 @@ static int make_channels(daemon_t *d)
     return 0;
 }
 
-/* ---- calibration (vislam-run's rules) ---- */
-
-static void apply_calibration(daemon_t *d, const vl_calibration_t *calib)
-{
-    if (d->info.override_log) {
-        d->n.calib_ignored++;
-        return;
-    }
-    if (d->initialized && vl_calibration_equal(&d->cfg.calibration, calib)) {
-        if (strcmp(d->calib_source, "log") != 0) {
-            d->calib_source = "log";
-            d->n.calib_used++;
-        } else {
-            d->n.calib_ignored++;
-        }
-        return;
-    }
-    if (d->inputs_fed) {
-        if (d->n.calib_changed++ == 0) {
-            fprintf(stderr, "vislamd: warning: calibration changed after inputs; ignored\n");
-        }
-        return;
-    }
-    vl_config_t candidate = d->cfg;
-    candidate.calibration = *calib;
-    if (vl_config_check(&candidate) != VL_OK || vl_init(&g_est, &candidate) != VL_OK) {
-        if (d->n.calib_invalid++ == 0) {
-            fprintf(stderr, "vislamd: warning: calibration message rejected by vl_config_check\n");
-        }
-        return;
-    }
-    d->cfg = candidate;
-    if (!d->initialized && !d->opt.quiet) {
-        fprintf(stderr, "vislamd: calibration received; estimating\n");
-    }
-    d->initialized = 1;
-    d->calib_source = "log";
-    d->n.calib_used++;
-}
-
 /* ---- timing ---- */
 
 /* b - a for b > a, saturated: input times are the sender's, INT64_MIN and INT64_MAX included. */
@@ -438,95 +373,20 @@ static void publish(daemon_t *d, int ch, const uint8_t *buf, int len)
     }
 }
 
-/*
- * The current pose on VISLAM_POSE and POSE, stamped with the input's time.
- * Returns 0 when published; a pose the core will not hand out (non-finite) is
- * withheld and counted.
- */
-static int publish_pose(daemon_t *d, int8_t source, int64_t utime)
-{
-    if (vl_get_pose(&g_est, &d->pose) != VL_OK) {
-        d->n.poses_withheld++;
-        return -1;
-    }
-    vl_msg_from_pose(&d->pose, source, (int64_t)d->n.poses_out, &d->pose_msg);
-    d->pose_msg.utime = utime;
-    int len = vislam_pose_t_encode(d->pose_buf, 0, (int)sizeof(d->pose_buf), &d->pose_msg);
-    publish(d, CH_POSE, d->pose_buf, len);
-    d->n.poses_out++;
-    vl_msg_from_pose_bot(&d->pose, &d->bot_msg);
-    d->bot_msg.utime = utime;
-    len = bot_core_pose_t_encode(d->bot_buf, 0, (int)sizeof(d->bot_buf), &d->bot_msg);
-    publish(d, CH_BOT_POSE, d->bot_buf, len);
-    d->n.bot_poses_out++;
-    return 0;
-}
-
-static uint64_t rejected_total(const daemon_t *d)
-{
-    return d->n.decode_errors + d->n.imu_waiting + d->n.frames_waiting + d->n.imu_rejected + d->n.frames_rejected;
-}
-
 static int32_t clamp32(int64_t v)
 {
     return v > INT32_MAX ? INT32_MAX : (v < INT32_MIN ? INT32_MIN : (int32_t)v);
 }
 
-static uint64_t allocations_since_start(const daemon_t *d)
-{
-    return d->alloc_count != NULL ? d->alloc_count() - d->alloc_baseline : 0;
-}
-
+/* The session's fields, then the daemon's: wall-clock stamp, budget, latencies. */
 static void publish_status(daemon_t *d)
 {
-    static vl_counters_t zero;
-    const vl_counters_t *c = d->initialized ? vl_get_counters(&g_est) : &zero;
     vislam_status_t *s = &d->status_msg;
-    const uint64_t rejected = rejected_total(d);
+    vl_session_fill_status(&d->session, s);
     s->utime = vl_clock_realtime_us();
-    s->last_input_utime = d->last_input_utime;
-    s->health = VISLAM_STATUS_T_HEALTH_OK;
-    if (!d->initialized) {
-        s->health |= VISLAM_STATUS_T_HEALTH_WAITING_CALIBRATION;
-    }
     if (d->n.overruns != d->overruns_at_status) {
         s->health |= VISLAM_STATUS_T_HEALTH_BUDGET_OVERRUN;
     }
-    const vl_counters_t *was = &d->core_at_status;
-    if (c->numerical_failures != was->numerical_failures) {
-        s->health |= VISLAM_STATUS_T_HEALTH_NUMERICAL_FAILURE;
-    }
-    if (rejected != d->rejected_at_status) {
-        s->health |= VISLAM_STATUS_T_HEALTH_INPUT_REJECTED;
-    }
-    if (d->n.time_refused != d->time_refused_at_status) {
-        s->health |= VISLAM_STATUS_T_HEALTH_TIME_REFUSED;
-    }
-    if (c->timeline_changes != was->timeline_changes) {
-        s->health |= VISLAM_STATUS_T_HEALTH_TIMELINE_CHANGE;
-    }
-    if (c->imu_implausible != was->imu_implausible || c->observations_implausible != was->observations_implausible) {
-        s->health |= VISLAM_STATUS_T_HEALTH_IMPLAUSIBLE_INPUT;
-    }
-    if (c->divergence_resets != was->divergence_resets) {
-        s->health |= VISLAM_STATUS_T_HEALTH_DIVERGENCE_RESET;
-    }
-    const uint32_t state = d->initialized ? vl_get_state_flags(&g_est) : 0u;
-    if ((state & VL_STATE_IMU_SILENT) || c->frames_imu_silent != was->frames_imu_silent) {
-        s->health |= VISLAM_STATUS_T_HEALTH_IMU_SILENT;
-    }
-    const uint64_t inputs = d->n.imu_in + d->n.frames_in;
-    if (d->initialized && ((state & VL_STATE_NO_CLOCK) || (inputs != d->inputs_at_status && d->n.used == d->used_at_status))) {
-        s->health |= VISLAM_STATUS_T_HEALTH_NOT_TRACKING;
-    }
-    s->imu_in = (int64_t)d->n.imu_in;
-    s->frames_in = (int64_t)d->n.frames_in;
-    s->poses_out = (int64_t)d->n.poses_out;
-    s->inputs_rejected = (int64_t)rejected;
-    s->observations_gated = (int64_t)c->observations_gated;
-    s->window_landmarks = d->initialized ? (int32_t)vl_window_size(&g_est) : 0;
-    s->window_capacity = (int32_t)d->cfg.max_landmarks;
-    s->landmarks_mapped = (int64_t)c->landmarks_marginalized;
     s->budget_us = d->budget_us;
     s->budget_overruns = (int64_t)d->n.overruns;
     s->steps = (int64_t)d->n.steps;
@@ -534,53 +394,49 @@ static void publish_status(daemon_t *d)
     s->latency_p99_us = clamp32(vl_latency_percentile(&d->lat_all, 99.0));
     s->latency_p999_us = clamp32(vl_latency_percentile(&d->lat_all, 99.9));
     s->latency_max_us = clamp32(vl_latency_max(&d->lat_all));
-    vl_pose_t pose;
-    const int have_pose = d->initialized && vl_get_pose(&g_est, &pose) == VL_OK;
-    s->linear_velocity_noise = have_pose ? pose.linear_velocity_noise : d->cfg.linear_velocity_noise;
-    s->angular_velocity_noise = have_pose ? pose.angular_velocity_noise : d->cfg.angular_velocity_noise;
-    s->pixel_noise = have_pose ? pose.pixel_noise : d->cfg.pixel_noise;
-    s->frames_repeated = (int64_t)c->frames_repeated;
-    s->time_jumps = (int64_t)c->time_jumps;
-    s->timeline_changes = (int64_t)c->timeline_changes;
-    s->divergence_resets = (int64_t)c->divergence_resets;
-    s->resets = (int64_t)c->resets;
-    s->imu_implausible = (int64_t)c->imu_implausible;
-    s->observations_implausible = (int64_t)c->observations_implausible;
-    s->frames_imu_silent = (int64_t)c->frames_imu_silent;
     const int len = vislam_status_t_encode(d->status_buf, 0, (int)sizeof(d->status_buf), s);
     publish(d, CH_STATUS, d->status_buf, len);
     d->n.status_out++;
     d->overruns_at_status = d->n.overruns;
-    d->core_at_status = *c;
-    d->rejected_at_status = rejected;
-    d->time_refused_at_status = d->n.time_refused;
-    d->used_at_status = d->n.used;
-    d->inputs_at_status = inputs;
+    vl_session_mark(&d->session);
 }
 
-/* A refusal by the core, counted by kind for the health bits. */
-static void note_refusal(daemon_t *d, vl_status_t s)
+/* Session sink: the pose on VISLAM_POSE and POSE, stamped with the input's time; frames also to the TUM file. */
+static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t sequence, const vl_pose_t *pose)
 {
-    if (s == VL_ERR_TIME_ORDER || s == VL_ERR_TIME_JUMP) {
-        d->n.time_refused++;
+    daemon_t *d = (daemon_t *)user;
+    const int8_t source = step == VL_SESSION_STEP_UPDATE ? VISLAM_POSE_T_SOURCE_FEATURES : VISLAM_POSE_T_SOURCE_IMU;
+    vl_msg_from_pose(pose, source, (int64_t)sequence, &d->pose_msg);
+    d->pose_msg.utime = utime;
+    int len = vislam_pose_t_encode(d->pose_buf, 0, (int)sizeof(d->pose_buf), &d->pose_msg);
+    publish(d, CH_POSE, d->pose_buf, len);
+    vl_msg_from_pose_bot(pose, &d->bot_msg);
+    d->bot_msg.utime = utime;
+    len = bot_core_pose_t_encode(d->bot_buf, 0, (int)sizeof(d->bot_buf), &d->bot_msg);
+    publish(d, CH_BOT_POSE, d->bot_buf, len);
+    d->n.bot_poses_out++;
+    if (step == VL_SESSION_STEP_UPDATE && d->have_trajectory && vl_trajectory_write(&d->trajectory, utime, pose) != 0) {
+        if (d->n.trajectory_errors++ == 0) {
+            fprintf(stderr, "vislamd: error: write to the trajectory %s failed\n", d->opt.trajectory_path);
+        }
     }
 }
 
 /*
- * The estimator re-initialized (VL_RESET): the event is an immediate status
- * with TIMELINE_CHANGE or DIVERGENCE_RESET set, so a listener need not wait for
- * the periodic one. Intervals of the old timeline no longer say anything.
+ * Session event. A re-initialization is an immediate status with TIMELINE_CHANGE
+ * or DIVERGENCE_RESET set, so a listener need not wait for the periodic one;
+ * intervals of the old timeline no longer say anything about the sensor period.
  */
-static void on_reset(daemon_t *d, int64_t utime)
+static void on_event(void *user, vl_session_event_t event, int64_t utime)
 {
-    d->n.reset_events++;
-    d->have_prev_imu = 0;
-    if (!d->opt.quiet) {
-        fprintf(stderr, "vislamd: estimator re-initialized at utime %" PRId64 " (%" PRIu64 " timeline change(s), %" PRIu64
-                        " divergence reset(s) in all)\n",
-                utime, vl_get_counters(&g_est)->timeline_changes, vl_get_counters(&g_est)->divergence_resets);
+    daemon_t *d = (daemon_t *)user;
+    (void)utime;
+    if (event == VL_SESSION_EVENT_REINITIALIZED) {
+        d->have_prev_imu = 0;
+        publish_status(d);
+    } else if (event == VL_SESSION_EVENT_CALIBRATED && !d->opt.quiet) {
+        fprintf(stderr, "vislamd: calibration received; estimating\n");
     }
-    publish_status(d);
 }
 
 static void print_status_line(const daemon_t *d)
@@ -593,103 +449,45 @@ static void print_status_line(const daemon_t *d)
             s->imu_in, s->frames_in, s->poses_out, s->inputs_rejected, (int)s->window_landmarks,
             (int)s->window_capacity, s->steps, (int)s->latency_p50_us, (int)s->latency_p99_us,
             (int)s->latency_max_us, s->budget_overruns, s->budget_us, (unsigned)s->health);
-    if (d->alloc_count != NULL) {
-        fprintf(stderr, " allocations-after-start-up %" PRIu64, allocations_since_start(d));
-        if (d->alloc_count_main != NULL) {
-            fprintf(stderr, " (main thread %" PRIu64 ")", d->alloc_count_main());
-        }
-    }
     fputc('\n', stderr);
 }
 
-/* ---- LCM handlers: one step each ---- */
+/* ---- LCM handlers: decode (vl_log_event_decode), then one session step, timed ---- */
 
-static int decoded_ok(int used, uint32_t len)
+static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_buf_t *rbuf, const char *channel)
 {
-    return used >= 0 && (uint32_t)used == len;
-}
-
-static void on_calibration(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
-{
-    (void)channel;
-    daemon_t *d = (daemon_t *)user;
-    d->n.calib_in++;
-    if (!decoded_ok(vislam_calibration_t_decode(rbuf->data, 0, (int)rbuf->data_size, &d->calib_msg),
-                    rbuf->data_size)) {
-        d->n.decode_errors++;
-        return;
-    }
-    vl_msg_to_calibration(&d->calib_msg, &d->calib, NULL);
-    apply_calibration(d, &d->calib);
-}
-
-static void on_imu(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
-{
-    (void)channel;
-    daemon_t *d = (daemon_t *)user;
     const int64_t t0 = vl_clock_monotonic_us();
-    d->n.imu_in++;
-    if (!decoded_ok(vislam_imu_t_decode(rbuf->data, 0, (int)rbuf->data_size, &d->imu_msg), rbuf->data_size)) {
-        d->n.decode_errors++;
+    vl_log_event_t *ev = &d->ev;
+    /* The channel names the event in a decode error; the LCM name is at most CHANNEL_MAX - 1 bytes. */
+    snprintf(ev->channel, sizeof(ev->channel), "%s", channel);
+    ev->event_number = 0;
+    ev->log_utime = rbuf->recv_utime;
+    vl_log_event_decode(&d->decoder, kind, rbuf->data, (int)rbuf->data_size, ev);
+    vl_status_t status = VL_OK;
+    const vl_session_step_t step = vl_session_input(&d->session, ev, &status);
+    if (step == VL_SESSION_STEP_NONE) {
         return;
     }
-    if (!d->initialized) {
-        d->n.imu_waiting++;
-        return;
+    const int64_t utime = step == VL_SESSION_STEP_UPDATE ? ev->frame.utime : ev->imu.utime;
+    if (step == VL_SESSION_STEP_PROPAGATE && status >= 0) {
+        note_imu_interval(d, utime);
     }
-    vl_msg_to_imu(&d->imu_msg, &d->imu);
-    d->inputs_fed = 1;
-    const vl_status_t s = vl_propagate(&g_est, &d->imu);
-    if (s < 0) {
-        d->n.imu_rejected++;
-        note_refusal(d, s);
-    } else {
-        d->n.used++;
-        if (s == VL_RESET) {
-            on_reset(d, d->imu.utime);
-        }
-        note_imu_interval(d, d->imu.utime);
-        d->last_input_utime = d->imu.utime;
-        (void)publish_pose(d, VISLAM_POSE_T_SOURCE_IMU, d->imu.utime);
-    }
-    finish_step(d, STEP_PROPAGATE, t0, d->imu.utime);
+    finish_step(d, step == VL_SESSION_STEP_UPDATE ? STEP_UPDATE : STEP_PROPAGATE, t0, utime);
 }
 
-static void on_features(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+static void on_calibration_msg(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
 {
-    (void)channel;
-    daemon_t *d = (daemon_t *)user;
-    const int64_t t0 = vl_clock_monotonic_us();
-    d->n.frames_in++;
-    if (!decoded_ok(vislam_stereo_frame_t_decode(rbuf->data, 0, (int)rbuf->data_size, &d->frame_msg),
-                    rbuf->data_size) ||
-        vl_msg_to_stereo_frame(&d->frame_msg, &d->frame) != VL_MSG_OK) {
-        d->n.decode_errors++;
-        return;
-    }
-    if (!d->initialized) {
-        d->n.frames_waiting++;
-        return;
-    }
-    d->inputs_fed = 1;
-    const vl_status_t s = vl_update(&g_est, &d->frame);
-    if (s < 0) {
-        d->n.frames_rejected++;
-        note_refusal(d, s);
-    } else {
-        d->n.used++;
-        if (s == VL_RESET) {
-            on_reset(d, d->frame.utime);
-        }
-        d->last_input_utime = d->frame.utime;
-        if (publish_pose(d, VISLAM_POSE_T_SOURCE_FEATURES, d->frame.utime) == 0 && d->have_trajectory &&
-            vl_trajectory_write(&d->trajectory, d->frame.utime, &d->pose) != 0) {
-            if (d->n.trajectory_errors++ == 0) {
-                fprintf(stderr, "vislamd: error: write to the trajectory %s failed\n", d->opt.trajectory_path);
-            }
-        }
-    }
-    finish_step(d, STEP_UPDATE, t0, d->frame.utime);
+    handle_input((daemon_t *)user, VL_LOG_EVENT_CALIBRATION, rbuf, channel);
+}
+
+static void on_imu_msg(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    handle_input((daemon_t *)user, VL_LOG_EVENT_IMU, rbuf, channel);
+}
+
+static void on_features_msg(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    handle_input((daemon_t *)user, VL_LOG_EVENT_FRAME, rbuf, channel);
 }
 
 /* Start-up only: the daemon's own first status, back through the multicast loopback. */
@@ -726,27 +524,6 @@ static void warm_up_lcm(daemon_t *d, int fd)
     }
 }
 
-/* ---- core logger: warnings only, rate limited by wall time like the overrun log ---- */
-
-static void core_log(void *user, vl_log_level_t level, int64_t utime, const char *message)
-{
-    static int64_t last_us;
-    static uint64_t suppressed;
-    daemon_t *d = (daemon_t *)user;
-    if (level < VL_LOG_WARN || (d->opt.quiet && level < VL_LOG_ERROR)) {
-        return;
-    }
-    const int64_t now = vl_clock_monotonic_us();
-    if (last_us != 0 && now - last_us < OVERRUN_LOG_PERIOD_US) {
-        suppressed++;
-        return;
-    }
-    fprintf(stderr, "vislamd: core %s at utime %" PRId64 ": %s (%" PRIu64 " suppressed before)\n",
-            level == VL_LOG_ERROR ? "error" : "warning", utime, message != NULL ? message : "", suppressed);
-    last_us = now;
-    suppressed = 0;
-}
-
 /* ---- start-up ---- */
 
 static int load_config(daemon_t *d)
@@ -761,9 +538,6 @@ static int load_config(daemon_t *d)
             return -1;
         }
     }
-    d->cfg.landmark_sink = NULL;
-    d->cfg.log = core_log;
-    d->cfg.log_user = d;
     return 0;
 }
 
@@ -782,6 +556,16 @@ static void realtime_setup(const options_t *o)
             fprintf(stderr, "vislamd: %s%s\n", s != VL_RT_OK ? "warning: " : "", msg);
         }
     }
+}
+
+/*
+ * The last step of start-up: LCM, the estimator, the buffers and the stack are
+ * mapped by now, so MCL_CURRENT locks what the loop touches (MCL_FUTURE the rest).
+ * Scheduling comes first (realtime_setup) so LCM's thread inherits it.
+ */
+static void lock_memory(const options_t *o)
+{
+    char msg[256];
     if (!o->no_mlock) {
         const vl_rt_status_t s = vl_rt_lock_memory(msg, sizeof(msg));
         if (s != VL_RT_OK || !o->quiet) {
@@ -816,37 +600,39 @@ static int warm_up(daemon_t *d)
 
 static void print_summary(const daemon_t *d)
 {
-    static vl_counters_t zero;
-    const vl_counters_t *c = d->initialized ? vl_get_counters(&g_est) : &zero;
+    const vl_session_t *ss = &d->session;
+    const vl_session_counters_t *n = vl_session_counters(ss);
+    const vl_counters_t *c = vl_session_core_counters(ss);
+    const vl_estimator_t *est = vl_session_estimator(ss);
     fprintf(stderr, "vislamd: stopped (%s); calibration from %s\n",
             vl_signal_last() == SIGINT ? "SIGINT" : (vl_signal_last() == SIGTERM ? "SIGTERM" : "error"),
-            d->calib_source);
+            vl_session_calibration_source(ss));
     fprintf(stderr,
             "  in: imu %" PRIu64 " frames %" PRIu64 " calibrations %" PRIu64 "; out: poses %" PRIu64
             " (+%" PRIu64 " on %s), statuses %" PRIu64 ", trajectory lines %" PRIu64 "\n",
-            d->n.imu_in, d->n.frames_in, d->n.calib_in, d->n.poses_out, d->n.bot_poses_out, d->channel[CH_BOT_POSE],
+            n->imu_in, n->frames_in, n->calibrations_in, n->poses_out, d->n.bot_poses_out, d->channel[CH_BOT_POSE],
             d->n.status_out, d->have_trajectory ? vl_trajectory_lines(&d->trajectory) : 0);
-    fprintf(stderr,
-            "  rejected %" PRIu64 ": waiting for calibration (imu %" PRIu64 ", frames %" PRIu64 "), decode errors %" PRIu64
-            ", refused by the core (imu %" PRIu64 ", frames %" PRIu64 ")\n",
-            rejected_total(d), d->n.imu_waiting, d->n.frames_waiting, d->n.decode_errors, d->n.imu_rejected,
-            d->n.frames_rejected);
-    fprintf(stderr,
-            "  calibrations used %" PRIu64 ", ignored %" PRIu64 ", changed after inputs %" PRIu64 ", invalid %" PRIu64
-            "; publish errors %" PRIu64 "; trajectory write errors %" PRIu64 "\n",
-            d->n.calib_used, d->n.calib_ignored, d->n.calib_changed, d->n.calib_invalid, d->n.publish_errors,
+    vl_counter_entry_t list[VL_SESSION_NUM_COUNTERS];
+    const size_t k = vl_session_counter_list(ss, list);
+    fprintf(stderr, "  session:");
+    for (size_t i = 0; i < k; ++i) {
+        if (list[i].value != 0) {
+            fprintf(stderr, " %s %" PRIu64, list[i].name, list[i].value);
+        }
+    }
+    fprintf(stderr, "; publish errors %" PRIu64 "; trajectory write errors %" PRIu64 "\n", d->n.publish_errors,
             d->n.trajectory_errors);
     fprintf(stderr, "  core: frames accepted %" PRIu64 ", observations used %" PRIu64 ", gated %" PRIu64
                     ", landmarks mapped %" PRIu64 ", window %u/%u, numerical failures %" PRIu64 "\n",
             c->frames_accepted, c->observations_used, c->observations_gated, c->landmarks_marginalized,
-            d->initialized ? (unsigned)vl_window_size(&g_est) : 0u, (unsigned)d->cfg.max_landmarks,
+            est != NULL ? (unsigned)vl_window_size(est) : 0u, (unsigned)vl_session_config(ss)->max_landmarks,
             c->numerical_failures);
     fprintf(stderr,
             "  robustness: time refused %" PRIu64 " (jumps %" PRIu64 "), timeline changes %" PRIu64
             ", divergence resets %" PRIu64 ", implausible imu %" PRIu64 " observations %" PRIu64
             ", frames refused for IMU silence %" PRIu64 ", poses withheld %" PRIu64 "\n",
-            d->n.time_refused, c->time_jumps, c->timeline_changes, c->divergence_resets, c->imu_implausible,
-            c->observations_implausible, c->frames_imu_silent, d->n.poses_withheld);
+            n->time_refused, c->time_jumps, c->timeline_changes, c->divergence_resets, c->imu_implausible,
+            c->observations_implausible, c->frames_imu_silent, n->poses_withheld);
     fprintf(stderr, "  budget %" PRId64 " us (%s): %" PRIu64 " overrun(s) in %" PRIu64 " steps\n", d->budget_us,
             d->opt.budget_us > 0 ? "--budget-us" : "sensor period", d->n.overruns, d->n.steps);
     fprintf(stderr, "  step latency (CLOCK_MONOTONIC, decode to publish):\n");
@@ -855,13 +641,6 @@ static void print_summary(const daemon_t *d)
     vl_latency_print(&d->lat_step[STEP_UPDATE], stderr, "    update     ");
     fprintf(stderr, "  histogram of all steps:\n");
     vl_latency_print_buckets(&d->lat_all, stderr);
-    if (d->alloc_count != NULL) {
-        fprintf(stderr, "  heap allocations after start-up: %" PRIu64 " in the process", allocations_since_start(d));
-        if (d->alloc_count_main != NULL) {
-            fprintf(stderr, ", %" PRIu64 " in the main (estimation) thread", d->alloc_count_main());
-        }
-        fprintf(stderr, " (preloaded allocation counter)\n");
-    }
 }
 
 int main(int argc, char **argv)
@@ -873,7 +652,6 @@ int main(int argc, char **argv)
     if (d->opt.print_config) {
         return vl_config_write_ini(stdout, &d->cfg, d->info.has_calibration) == 0 ? 0 : EXIT_RUNTIME;
     }
-    d->calib_source = "none";
     d->budget_us = d->opt.budget_us > 0 ? d->opt.budget_us : DEFAULT_BUDGET_US;
     vl_latency_reset(&d->lat_all);
     vl_latency_reset(&d->lat_step[0]);
@@ -887,13 +665,18 @@ int main(int argc, char **argv)
     }
     realtime_setup(&d->opt);
 
-    if (d->info.has_calibration) {
-        if (vl_init(&g_est, &d->cfg) != VL_OK) {
-            fprintf(stderr, "vislamd: vl_init refused the configuration\n");
-            return EXIT_USAGE;
-        }
-        d->initialized = 1;
-        d->calib_source = "config";
+    vl_session_options_t so;
+    memset(&so, 0, sizeof(so));
+    so.program = "vislamd";
+    so.quiet = d->opt.quiet;
+    so.config_has_calibration = d->info.has_calibration;
+    so.override_log = d->info.override_log;
+    so.callbacks.on_pose = on_pose;
+    so.callbacks.on_event = on_event;
+    so.callbacks.user = d;
+    if (vl_session_init(&d->session, &g_est, &d->cfg, &so) != VL_OK) {
+        fprintf(stderr, "vislamd: vl_init refused the configuration\n");
+        return EXIT_USAGE;
     }
     if (d->opt.trajectory_path != NULL) {
         char err[512];
@@ -922,9 +705,9 @@ int main(int argc, char **argv)
                 d->opt.lcm_url != NULL ? d->opt.lcm_url : "default; set --lcm-url or LCM_DEFAULT_URL");
         return EXIT_RUNTIME;
     }
-    if (lcm_subscribe(d->lcm, d->channel[CH_CALIB], on_calibration, d) == NULL ||
-        lcm_subscribe(d->lcm, d->channel[CH_IMU], on_imu, d) == NULL ||
-        lcm_subscribe(d->lcm, d->channel[CH_FEATURES], on_features, d) == NULL) {
+    if (lcm_subscribe(d->lcm, d->channel[CH_CALIB], on_calibration_msg, d) == NULL ||
+        lcm_subscribe(d->lcm, d->channel[CH_IMU], on_imu_msg, d) == NULL ||
+        lcm_subscribe(d->lcm, d->channel[CH_FEATURES], on_features_msg, d) == NULL) {
         fprintf(stderr, "vislamd: lcm_subscribe failed\n");
         lcm_destroy(d->lcm);
         return EXIT_RUNTIME;
@@ -938,29 +721,14 @@ int main(int argc, char **argv)
 
     warm_up_lcm(d, fd); /* also publishes the first status: "I am up" */
 
-    /* End of start-up: from here on the loop should not allocate. */
-    void *sym = dlsym(RTLD_DEFAULT, "vl_alloc_count");
-    if (sym != NULL) {
-        memcpy(&d->alloc_count, &sym, sizeof(sym));
-    }
-    sym = dlsym(RTLD_DEFAULT, "vl_alloc_count_armed_thread");
-    if (sym != NULL) {
-        memcpy(&d->alloc_count_main, &sym, sizeof(sym));
-    }
-    sym = dlsym(RTLD_DEFAULT, "vl_alloc_arm");
-    if (d->alloc_count != NULL) {
-        d->alloc_baseline = d->alloc_count();
-    }
-    if (sym != NULL) {
-        alloc_arm_fn arm;
-        memcpy(&arm, &sym, sizeof(sym));
-        arm();
-    }
+    /* End of start-up: everything the loop uses is mapped; lock it. From here on the loop does
+       not allocate (an LD_PRELOAD counter can take this mlockall as its mark: tests/support). */
+    lock_memory(&d->opt);
     if (!d->opt.quiet) {
         fprintf(stderr, "vislamd: ready: %s %s %s -> %s %s %s (lcm %s)%s\n", d->channel[CH_IMU],
                 d->channel[CH_FEATURES], d->channel[CH_CALIB], d->channel[CH_POSE], d->channel[CH_BOT_POSE],
                 d->channel[CH_STATUS], d->opt.lcm_url != NULL ? d->opt.lcm_url : "default",
-                d->initialized ? "" : "; waiting for a calibration");
+                vl_session_initialized(&d->session) ? "" : "; waiting for a calibration");
     }
 
     int exit_code = 0;

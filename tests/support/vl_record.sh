@@ -1,0 +1,60 @@
+# Shared by tests/test_daemon.sh and tests/test_faults.sh (sourced): recording the daemon's
+# outputs and synchronizing on them. Needs $URL, $OUT, $INSPECT (vl_log_inspect) and the PIDS array.
+#
+# Synchronization is on what the daemon publishes, never on guessed delays: a recording is read
+# back with vl_log_inspect while lcm-logger writes it. --flush-interval=1 makes each event reach
+# the file as it is written (the default flushes only when an event comes 100 ms after the last
+# flush, so a final status could sit in the logger's buffer until it exits).
+
+# record_start NAME CHANNELS: lcm-logger into $OUT/NAME.lcmlog; its pid in $LOGGER.
+record_start() {
+  lcm-logger --lcm-url="$URL" --channel="$2" --flush-interval=1 -q -f "$OUT/$1.lcmlog" &
+  LOGGER=$!
+  PIDS+=("$LOGGER")
+}
+
+# wait_recorded LOG KEY MIN SECONDS: until vl_log_inspect's KEY >= MIN in LOG; 1 (and a line) on timeout.
+wait_recorded() {
+  local deadline=$((SECONDS + $4)) v
+  while [ "$SECONDS" -le "$deadline" ]; do
+    if [ -s "$1" ]; then
+      v=$("$INSPECT" "$1" 2>/dev/null | awk -v k="$2" '$1 == k { print $2 }' || true)
+      if [ -n "$v" ] && [ "$v" -ge "$3" ] 2>/dev/null; then
+        return 0
+      fi
+    fi
+    sleep 0.05 # the poll period, not a guess at when something happens
+  done
+  echo "      timed out waiting for $2 >= $3 in $1"
+  return 1
+}
+
+# wait_exit PID SECONDS: waits for PID to end; its exit status in $WAIT_RC (124 on timeout).
+wait_exit() {
+  local i
+  for ((i = 0; i < $2 * 10; i++)); do
+    if ! kill -0 "$1" 2>/dev/null; then
+      WAIT_RC=0
+      wait "$1" || WAIT_RC=$?
+      return 0
+    fi
+    sleep 0.1 # the poll period of a bounded wait for the process's end
+  done
+  kill -KILL "$1" 2>/dev/null || true
+  wait "$1" 2>/dev/null || true
+  WAIT_RC=124
+}
+
+# record_stop NAME: SIGTERM to $DAEMON (its exit status in $WAIT_RC), then the logger once the
+# recording holds a status stamped after the SIGTERM: the daemon's final one.
+record_stop() {
+  local t_term rc
+  t_term=$(date +%s%6N)
+  kill -TERM "$DAEMON" 2>/dev/null || true
+  wait_exit "$DAEMON" 10
+  rc=$WAIT_RC
+  wait_recorded "$OUT/$1.lcmlog" status.last.utime "$t_term" 5 || true
+  kill -INT "$LOGGER" 2>/dev/null || true
+  wait_exit "$LOGGER" 5
+  WAIT_RC=$rc
+}
