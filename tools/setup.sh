@@ -20,6 +20,7 @@ VL_REPO_ROOT="${VL_REPO_ROOT:-$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)}"
 #   python tools: python3 python3-venv ca-certificates (pip over https)
 #   LCM integration tests: iproute2 (`ip` inside `unshare --net`; util-linux gives unshare)
 #   benchmarks: valgrind
+#   fuzzing (tools/fuzz.sh, libFuzzer): clang libclang-rt-dev (the sanitizer and fuzzer runtimes)
 #   misc: dpkg-dev (apt-get source), git, xz-utils
 VL_DEB_PACKAGES=(
   cmake g++ make pkg-config
@@ -27,6 +28,7 @@ VL_DEB_PACKAGES=(
   python3 python3-venv ca-certificates
   iproute2 util-linux
   valgrind
+  clang libclang-rt-dev
   dpkg-dev git xz-utils
 )
 

@@ -4,8 +4,11 @@
 #   tools/test.sh [extra CMake configure args...]      e.g. tools/test.sh -DVL_MAX_LANDMARKS=64
 #
 # Steps: Debian packages (only what is missing), Unity, Python venv (only when requirements.txt
-# changed), CMake configure (Release, -Werror), build, CTest, pytest. Ends with one line
-# `N passed, N failed, N skipped` over all CTest and pytest tests, and exits non-zero on any failure.
+# changed), CMake configure (Release, -Werror), build, CTest, pytest, then the same CTest suite
+# built with AddressSanitizer and UndefinedBehaviorSanitizer (the allocation counters excluded:
+# ASan owns malloc; the plain CTest above runs them), then each libFuzzer harness for a bounded
+# time (tools/fuzz.sh; when clang is there). Ends with one line `N passed, N failed, N skipped`
+# over all of it (each fuzzer counts as one test), and exits non-zero on any failure.
 #
 # Environment (all optional):
 #   BUILD_DIR         build directory (default build, relative to the repo root)
@@ -15,6 +18,11 @@
 #   UNITY_ROOT        use this Unity tree (-DUNITY_ROOT=...) and fetch nothing
 #   CTEST_TIMEOUT     default per-test timeout in seconds (default 600)
 #   CTEST_PARALLEL_LEVEL, VENV_DIR, VL_PYTHON, REQUIREMENTS, VL_SKIP_APT: see tools/setup.sh
+#   VL_SANITIZE_STAGE 0 skips the sanitizer build and its CTest (default 1)
+#   SANITIZE_BUILD_DIR its build directory (default build-asan); VL_SANITIZE its sanitizers
+#                     (default address,undefined)
+#   VL_FUZZ_SECONDS   run time of each fuzzer in seconds (default 60; 0 skips the fuzz step)
+#   FUZZ_BUILD_DIR    the fuzzers' build directory (default build-fuzz); see tools/fuzz.sh
 set -Eeuo pipefail
 
 REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -25,7 +33,7 @@ export DEBIAN_FRONTEND=noninteractive
 source "$REPO_ROOT/tools/setup.sh"
 
 case "${1:-}" in
-  -h|--help) sed -n '2,19p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+  -h|--help) sed -n '2,26p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
 esac
 
 BUILD_DIR="${BUILD_DIR:-build}"
@@ -35,9 +43,14 @@ JOBS="${JOBS:-2}"
 VENV_DIR="${VENV_DIR:-$REPO_ROOT/.venv}"
 export VENV_DIR
 RESULTS_DIR="$BUILD_DIR/test-results"
+SANITIZE_STAGE="${VL_SANITIZE_STAGE:-1}"
+SANITIZERS="${VL_SANITIZE:-address,undefined}"
+SANITIZE_BUILD_DIR="${SANITIZE_BUILD_DIR:-build-asan}"
+case "$SANITIZE_BUILD_DIR" in /*) ;; *) SANITIZE_BUILD_DIR="$REPO_ROOT/$SANITIZE_BUILD_DIR" ;; esac
+FUZZ_SECONDS="${VL_FUZZ_SECONDS:-60}"
 
 # ---- step bookkeeping: headers, timing, and saying which step failed --------------------------
-STEPS_TOTAL=7
+STEPS_TOTAL=9
 STEP_NO=0
 STEP_NAME="start-up"
 STEP_START=$SECONDS
@@ -100,7 +113,32 @@ cmake "${cmake_args[@]}"
 step "Build (-j$JOBS)"
 cmake --build "$BUILD_DIR" -j "$JOBS"
 
-# ---- tests: run both suites even when the first fails, then count ------------------------------
+# ---- tests: run every suite even when one fails, then count ---------------------------------------
+# ctest_counts LOG RC: prints "passed failed skipped" from a ctest log and its exit status.
+# ctest's own summary: "NN% tests passed, F tests failed out of T"; skipped and disabled tests
+# count as neither passed nor failed there, and are listed under "The following tests did not run:".
+ctest_counts() {
+  local log=$1 rc=$2 total=0 failed=0 skipped=0 passed summary_line
+  summary_line="$(grep -E '[0-9]+ tests? failed out of [0-9]+' "$log" | tail -n1 || true)"
+  if [ -n "$summary_line" ]; then
+    failed="$(sed -E 's/.* ([0-9]+) tests? failed out of ([0-9]+).*/\1/' <<<"$summary_line")"
+    total="$(sed -E 's/.* ([0-9]+) tests? failed out of ([0-9]+).*/\2/' <<<"$summary_line")"
+    skipped="$(awk '/^The following tests did not run:/ { on = 1; next }
+                    on && /^[[:space:]]*$/ { on = 0 }
+                    on && /\((Skipped|Disabled)\)[[:space:]]*$/ { n++ }
+                    END { print n + 0 }' "$log")"
+  elif [ "$rc" -ne 0 ]; then
+    failed=1   # ctest died before summarising: count it as one failure
+  fi
+  passed=$((total - failed - skipped))
+  [ "$passed" -ge 0 ] || passed=0
+  if [ "$rc" -ne 0 ]; then
+    echo "CTest exited with status $rc" >&2
+    [ "$failed" -gt 0 ] || failed=1
+  fi
+  echo "$passed $failed $skipped"
+}
+
 export VL_BUILD_DIR="$BUILD_DIR"   # lets the Python tests find generated LCM types and binaries
 rm -rf "$RESULTS_DIR"
 mkdir -p "$RESULTS_DIR"
@@ -110,26 +148,7 @@ ctest_rc=0
 (cd "$BUILD_DIR" && ctest --output-on-failure --timeout "${CTEST_TIMEOUT:-600}") 2>&1 \
   | tee "$RESULTS_DIR/ctest.log" || ctest_rc=$?
 
-# ctest's own summary: "NN% tests passed, F tests failed out of T"; skipped and disabled tests
-# count as neither passed nor failed there, and are listed under "The following tests did not run:".
-ct_total=0 ct_failed=0 ct_skipped=0
-summary_line="$(grep -E '[0-9]+ tests? failed out of [0-9]+' "$RESULTS_DIR/ctest.log" | tail -n1 || true)"
-if [ -n "$summary_line" ]; then
-  ct_failed="$(sed -E 's/.* ([0-9]+) tests? failed out of ([0-9]+).*/\1/' <<<"$summary_line")"
-  ct_total="$(sed -E 's/.* ([0-9]+) tests? failed out of ([0-9]+).*/\2/' <<<"$summary_line")"
-  ct_skipped="$(awk '/^The following tests did not run:/ { on = 1; next }
-                     on && /^[[:space:]]*$/ { on = 0 }
-                     on && /\((Skipped|Disabled)\)[[:space:]]*$/ { n++ }
-                     END { print n + 0 }' "$RESULTS_DIR/ctest.log")"
-elif [ "$ctest_rc" -ne 0 ]; then
-  ct_failed=1   # ctest died before summarising: count it as one failure
-fi
-ct_passed=$((ct_total - ct_failed - ct_skipped))
-[ "$ct_passed" -ge 0 ] || ct_passed=0
-if [ "$ctest_rc" -ne 0 ]; then
-  echo "CTest exited with status $ctest_rc"
-  [ "$ct_failed" -gt 0 ] || ct_failed=1
-fi
+read -r ct_passed ct_failed ct_skipped <<<"$(ctest_counts "$RESULTS_DIR/ctest.log" "$ctest_rc")"
 
 step "pytest (tests/python)"
 py_rc=0 py_passed=0 py_failed=0 py_skipped=0
@@ -164,20 +183,74 @@ EOF
 else
   echo "no tests/python directory: nothing to run"
 fi
+
+# ---- sanitizers: the CTest suite again, built with ASan + UBSan in its own directory -------------
+step "Sanitizer build and CTest ($SANITIZERS, $SANITIZE_BUILD_DIR)"
+san_rc=0 san_passed=0 san_failed=0 san_skipped=0
+if [ "$SANITIZE_STAGE" = 0 ]; then
+  echo "skipped (VL_SANITIZE_STAGE=0)"
+  san_skipped=1
+else
+  san_args=("${cmake_args[@]}")
+  san_args[3]="$SANITIZE_BUILD_DIR"   # -S ROOT -B DIR ...: the same configuration, another directory
+  san_args+=(-DVL_SANITIZE="$SANITIZERS")
+  san_log="$RESULTS_DIR/ctest-sanitize.log"
+  if cmake "${san_args[@]}" >"$RESULTS_DIR/sanitize-configure.log" 2>&1 \
+     && cmake --build "$SANITIZE_BUILD_DIR" -j "$JOBS" >"$RESULTS_DIR/sanitize-build.log" 2>&1; then
+    echo "built in $SANITIZE_BUILD_DIR (output: $RESULTS_DIR/sanitize-build.log)"
+    # Findings abort the test (-fno-sanitize-recover, halt_on_error) with a stack trace.
+    (cd "$SANITIZE_BUILD_DIR" && \
+      ASAN_OPTIONS="${ASAN_OPTIONS:-detect_leaks=1}" \
+      UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}" \
+      ctest --output-on-failure --timeout "${CTEST_TIMEOUT:-600}") 2>&1 | tee "$san_log" || san_rc=$?
+    read -r san_passed san_failed san_skipped <<<"$(ctest_counts "$san_log" "$san_rc")"
+  else
+    san_rc=1 san_failed=1
+    echo "sanitizer configure or build FAILED; the end of its output:"
+    tail -n 40 "$RESULTS_DIR/sanitize-build.log" 2>/dev/null || tail -n 40 "$RESULTS_DIR/sanitize-configure.log"
+  fi
+fi
+
+# ---- fuzzers: each libFuzzer harness for a bounded time (tools/fuzz.sh) -------------------------
+step "Fuzzers (${FUZZ_SECONDS}s each)"
+fz_rc=0 fz_passed=0 fz_failed=0 fz_skipped=0
+fz_harnesses=(messages log_reader)
+if [ "$FUZZ_SECONDS" = 0 ]; then
+  echo "skipped (VL_FUZZ_SECONDS=0)"
+  fz_skipped=${#fz_harnesses[@]}
+elif ! command -v clang >/dev/null 2>&1; then
+  echo "skipped: clang not found (tools/setup.sh installs it)"
+  fz_skipped=${#fz_harnesses[@]}
+elif ! UNITY_ROOT="$VL_UNITY_ROOT" JOBS="$JOBS" bash "$REPO_ROOT/tools/fuzz.sh" --build-only \
+       >"$RESULTS_DIR/fuzz-build.log" 2>&1; then
+  fz_rc=1 fz_failed=1
+  echo "fuzzer build FAILED; the end of its output:"
+  tail -n 40 "$RESULTS_DIR/fuzz-build.log"
+else
+  echo "built (output: $RESULTS_DIR/fuzz-build.log)"
+  for h in "${fz_harnesses[@]}"; do
+    if bash "$REPO_ROOT/tools/fuzz.sh" --no-build --seconds "$FUZZ_SECONDS" "$h"; then
+      fz_passed=$((fz_passed + 1))
+    else
+      fz_rc=1 fz_failed=$((fz_failed + 1))
+    fi
+  done
+fi
 printf -- '---- done: %s (%ds)\n' "$STEP_NAME" "$((SECONDS - STEP_START))"
 
 # ---- summary -----------------------------------------------------------------------------------
 trap - ERR
-passed=$((ct_passed + py_passed))
-failed=$((ct_failed + py_failed))
-skipped=$((ct_skipped + py_skipped))
+passed=$((ct_passed + py_passed + san_passed + fz_passed))
+failed=$((ct_failed + py_failed + san_failed + fz_failed))
+skipped=$((ct_skipped + py_skipped + san_skipped + fz_skipped))
 status=0
-if [ "$ctest_rc" -ne 0 ] || [ "$py_rc" -ne 0 ] || [ "$failed" -ne 0 ]; then
+if [ "$ctest_rc" -ne 0 ] || [ "$py_rc" -ne 0 ] || [ "$san_rc" -ne 0 ] || [ "$fz_rc" -ne 0 ] || [ "$failed" -ne 0 ]; then
   status=1
 fi
 trap - EXIT
 echo
-echo "==== Summary: CTest $ct_passed/$ct_failed/$ct_skipped, pytest $py_passed/$py_failed/$py_skipped" \
+echo "==== Summary: CTest $ct_passed/$ct_failed/$ct_skipped, pytest $py_passed/$py_failed/$py_skipped," \
+     "sanitizer CTest $san_passed/$san_failed/$san_skipped, fuzzers $fz_passed/$fz_failed/$fz_skipped" \
      "(passed/failed/skipped): $([ "$status" -eq 0 ] && echo OK || echo FAILED) ===="
 # The closing line CI reads: keep it last and alone on its line.
 echo "$passed passed, $failed failed, $skipped skipped"
