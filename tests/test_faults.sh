@@ -23,7 +23,7 @@
 #   shift        the stream from step 100 on shifted 1 h back
 #   twice        the log played twice into one daemon
 #   velocity     one IMU sample at 1e300 m/s
-#   no-imu       50 steps without IMU
+#   no-imu       100 steps without IMU (50 to 149)
 # Exit 77 (CTest skip) when a private network namespace, lcm-logger or the project's Python is
 # unavailable.
 set -euo pipefail
@@ -294,7 +294,7 @@ check "daemon exits 0, its trajectory equals vislam-run's (undisturbed)" \
 # fault:step:count:the final status counter that must name it
 core_rows="corrupt:100::inputs_rejected imu-hour:100::time_jumps imu-max:100::time_jumps
   imu-min:0::timeline_changes shift:100::timeline_changes twice:100::timeline_changes
-  velocity:100::imu_implausible no-imu:100:50:frames_imu_silent"
+  velocity:100::imu_implausible no-imu:50:100:frames_imu_silent"
 for row in $core_rows; do
   IFS=: read -r fault step count counter <<<"$row"
   echo "== row $fault (estimator)"
