@@ -3,6 +3,7 @@
 # directory (never into the project), for the tests and benchmarks that run on real data.
 # Exits 77 (reported as skipped) when ../shared/data is absent.
 set -euo pipefail
+shopt -s nullglob # a data folder without datasets converts nothing
 data_dir="$1"
 out_dir="$2"
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"

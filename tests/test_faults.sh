@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fault injection (issue 7), run by CTest:
+# Fault injection, run by CTest:
 #
 #   tests/test_faults.sh BIN_DIR LOG_INSPECT SOURCE_DIR BUILD_DIR
 #

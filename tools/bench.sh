@@ -18,6 +18,7 @@
 # note when it is absent. Nothing derived from the datasets is written outside out/.
 # Timing sections need root for cyclictest (SCHED_FIFO) and the daemon section for
 # `unshare --net` (a private network namespace for LCM multicast); both skip with a note.
+# No -e: a failed run is recorded as a warning and its cells as n/a, and the other sections go on.
 set -uo pipefail
 
 REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"

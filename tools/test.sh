@@ -33,7 +33,7 @@ export DEBIAN_FRONTEND=noninteractive
 source "$REPO_ROOT/tools/setup.sh"
 
 case "${1:-}" in
-  -h|--help) sed -n '2,26p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+  -h|--help) awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "${BASH_SOURCE[0]}"; exit 0 ;;
 esac
 
 BUILD_DIR="${BUILD_DIR:-build}"
@@ -114,29 +114,26 @@ step "Build (-j$JOBS)"
 cmake --build "$BUILD_DIR" -j "$JOBS"
 
 # ---- tests: run every suite even when one fails, then count ---------------------------------------
-# ctest_counts LOG RC: prints "passed failed skipped" from a ctest log and its exit status.
-# ctest's own summary: "NN% tests passed, F tests failed out of T"; skipped and disabled tests
-# count as neither passed nor failed there, and are listed under "The following tests did not run:".
+# ctest_counts JUNIT RC: prints "passed failed skipped" from CTest's JUnit report (--output-junit)
+# and its exit status: a test that ran and passed, failed, or did not run (skipped, disabled).
 ctest_counts() {
-  local log=$1 rc=$2 total=0 failed=0 skipped=0 passed summary_line
-  summary_line="$(grep -E '[0-9]+ tests? failed out of [0-9]+' "$log" | tail -n1 || true)"
-  if [ -n "$summary_line" ]; then
-    failed="$(sed -E 's/.* ([0-9]+) tests? failed out of ([0-9]+).*/\1/' <<<"$summary_line")"
-    total="$(sed -E 's/.* ([0-9]+) tests? failed out of ([0-9]+).*/\2/' <<<"$summary_line")"
-    skipped="$(awk '/^The following tests did not run:/ { on = 1; next }
-                    on && /^[[:space:]]*$/ { on = 0 }
-                    on && /\((Skipped|Disabled)\)[[:space:]]*$/ { n++ }
-                    END { print n + 0 }' "$log")"
+  local junit=$1 rc=$2 counts p f s
+  counts="$("$VENV_DIR/bin/python" - "$junit" 2>/dev/null <<'EOF' || true
+import sys
+import xml.etree.ElementTree as ET
+status = [c.get("status") for c in ET.parse(sys.argv[1]).getroot().iter("testcase")]
+print(status.count("run"), status.count("fail"), len(status) - status.count("run") - status.count("fail"))
+EOF
+)"
+  if [ -z "$counts" ]; then
+    counts="0 1 0" # no report: ctest died before writing it, one failure
   elif [ "$rc" -ne 0 ]; then
-    failed=1   # ctest died before summarising: count it as one failure
-  fi
-  passed=$((total - failed - skipped))
-  [ "$passed" -ge 0 ] || passed=0
-  if [ "$rc" -ne 0 ]; then
     echo "CTest exited with status $rc" >&2
-    [ "$failed" -gt 0 ] || failed=1
+    read -r p f s <<<"$counts"
+    [ "$f" -gt 0 ] || f=1
+    counts="$p $f $s"
   fi
-  echo "$passed $failed $skipped"
+  echo "$counts"
 }
 
 export VL_BUILD_DIR="$BUILD_DIR"   # lets the Python tests find generated LCM types and binaries
@@ -145,10 +142,10 @@ mkdir -p "$RESULTS_DIR"
 
 step "CTest"
 ctest_rc=0
-(cd "$BUILD_DIR" && ctest --output-on-failure --timeout "${CTEST_TIMEOUT:-600}") 2>&1 \
-  | tee "$RESULTS_DIR/ctest.log" || ctest_rc=$?
+(cd "$BUILD_DIR" && ctest --output-on-failure --timeout "${CTEST_TIMEOUT:-600}" \
+  --output-junit "$RESULTS_DIR/ctest.xml") 2>&1 | tee "$RESULTS_DIR/ctest.log" || ctest_rc=$?
 
-read -r ct_passed ct_failed ct_skipped <<<"$(ctest_counts "$RESULTS_DIR/ctest.log" "$ctest_rc")"
+read -r ct_passed ct_failed ct_skipped <<<"$(ctest_counts "$RESULTS_DIR/ctest.xml" "$ctest_rc")"
 
 step "pytest (tests/python)"
 py_rc=0 py_passed=0 py_failed=0 py_skipped=0
@@ -202,8 +199,9 @@ else
     (cd "$SANITIZE_BUILD_DIR" && \
       ASAN_OPTIONS="${ASAN_OPTIONS:-detect_leaks=1}" \
       UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}" \
-      ctest --output-on-failure --timeout "${CTEST_TIMEOUT:-600}") 2>&1 | tee "$san_log" || san_rc=$?
-    read -r san_passed san_failed san_skipped <<<"$(ctest_counts "$san_log" "$san_rc")"
+      ctest --output-on-failure --timeout "${CTEST_TIMEOUT:-600}" --output-junit "$RESULTS_DIR/ctest-sanitize.xml") \
+      2>&1 | tee "$san_log" || san_rc=$?
+    read -r san_passed san_failed san_skipped <<<"$(ctest_counts "$RESULTS_DIR/ctest-sanitize.xml" "$san_rc")"
   else
     san_rc=1 san_failed=1
     echo "sanitizer configure or build FAILED; the end of its output:"
