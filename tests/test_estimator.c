@@ -18,49 +18,23 @@ static void kitti_config(vl_config_t *cfg)
     vl_test_kitti_calibration(&cfg->calibration, 1);
 }
 
-/* Pixels of a world point seen from the identity pose. */
-static void observe(const vl_config_t *cfg, const double pw[3], int32_t id, vl_stereo_obs_t *o)
-{
-    const double *T = cfg->calibration.cam_T_imu;
-    double c[3];
-    for (int i = 0; i < 3; ++i) {
-        c[i] = T[4 * i] * pw[0] + T[4 * i + 1] * pw[1] + T[4 * i + 2] * pw[2] + T[4 * i + 3];
-    }
-    double y[3];
-    vl_stereo_project(&cfg->calibration, c, y, NULL);
-    o->id = id;
-    o->u_left = y[0];
-    o->v_left = y[1];
-    o->u_right = y[2];
-    o->v_right = y[1];
-}
-
 /* A frame seeing n landmarks ahead of the vehicle (IMU x forward). */
 static void make_frame(const vl_config_t *cfg, vl_stereo_frame_t *f, int64_t utime, uint32_t n, int32_t first_id)
 {
     f->utime = utime;
     f->count = n;
     for (uint32_t i = 0; i < n; ++i) {
-        const double pw[3] = {8.0 + 1.5 * (double)i, -4.0 + 0.7 * (double)(i % 11), -1.0 + 0.3 * (double)(i % 7)};
-        observe(cfg, pw, first_id + (int32_t)i, &f->obs[i]);
+        double pw[3];
+        vl_test_point_ahead(i, pw);
+        vl_test_observe(&cfg->calibration, pw, first_id + (int32_t)i, &f->obs[i]);
     }
-}
-
-static vl_imu_sample_t imu_at(int64_t utime, double vx, double wz)
-{
-    vl_imu_sample_t s;
-    memset(&s, 0, sizeof(s));
-    s.utime = utime;
-    s.linear_velocity[0] = vx;
-    s.angular_velocity[2] = wz;
-    return s;
 }
 
 /* vl_init, then the first IMU sample (at rest) at utime, which sets the clock. */
 static vl_imu_sample_t start_at(const vl_config_t *cfg, int64_t utime)
 {
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, cfg));
-    vl_imu_sample_t s = imu_at(utime, 0.0, 0.0);
+    vl_imu_sample_t s = vl_test_imu_at(utime, 0.0, 0.0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
     return s;
 }
@@ -125,11 +99,11 @@ void test_propagate_rejects_nan_and_counts_it(void)
     vl_config_t cfg;
     kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
-    vl_imu_sample_t s = imu_at(1000000, 1.0, 0.0);
+    vl_imu_sample_t s = vl_test_imu_at(1000000, 1.0, 0.0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
-    s = imu_at(1100000, NAN, 0.0);
+    s = vl_test_imu_at(1100000, NAN, 0.0);
     TEST_ASSERT_EQUAL_INT(VL_ERR_NON_FINITE, vl_propagate(&est, &s));
-    s = imu_at(1100000, 1.0, INFINITY);
+    s = vl_test_imu_at(1100000, 1.0, INFINITY);
     TEST_ASSERT_EQUAL_INT(VL_ERR_NON_FINITE, vl_propagate(&est, &s));
     TEST_ASSERT_EQUAL_UINT64(2, vl_get_counters(&est)->imu_rejected);
     TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->imu_accepted);
@@ -143,7 +117,7 @@ void test_propagate_rejects_non_increasing_time(void)
     vl_config_t cfg;
     kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
-    vl_imu_sample_t s = imu_at(2000000, 1.0, 0.0);
+    vl_imu_sample_t s = vl_test_imu_at(2000000, 1.0, 0.0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
     TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_ORDER, vl_propagate(&est, &s));
     s.utime = 1999999;
@@ -561,9 +535,9 @@ void test_window_admits_the_largest_disparity_first(void)
     frame.utime = 0;
     frame.count = 3;
     const double far[3] = {40.0, 1.0, 0.0}, near[3] = {6.0, 1.0, 0.0}, mid[3] = {15.0, 1.0, 0.0};
-    observe(&cfg, far, 1, &frame.obs[0]);
-    observe(&cfg, near, 2, &frame.obs[1]);
-    observe(&cfg, mid, 3, &frame.obs[2]);
+    vl_test_observe(&cfg.calibration, far, 1, &frame.obs[0]);
+    vl_test_observe(&cfg.calibration, near, 2, &frame.obs[1]);
+    vl_test_observe(&cfg.calibration, mid, 3, &frame.obs[2]);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
     vl_landmark_t lm;
     size_t count = 0;

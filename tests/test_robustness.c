@@ -25,41 +25,22 @@ static void test_config(vl_config_t *cfg)
     vl_test_kitti_calibration(&cfg->calibration, 1);
 }
 
-/* Pixels of a world point seen from the identity pose. */
-static void observe(const vl_config_t *cfg, const double pw[3], int32_t id, vl_stereo_obs_t *o)
-{
-    const double *T = cfg->calibration.cam_T_imu;
-    double c[3];
-    for (int i = 0; i < 3; ++i) {
-        c[i] = T[4 * i] * pw[0] + T[4 * i + 1] * pw[1] + T[4 * i + 2] * pw[2] + T[4 * i + 3];
-    }
-    double y[3];
-    vl_stereo_project(&cfg->calibration, c, y, NULL);
-    o->id = id;
-    o->u_left = y[0];
-    o->v_left = y[1];
-    o->u_right = y[2];
-    o->v_right = y[1];
-}
-
 /* A frame of a vehicle standing at the identity pose, seeing NUM_POINTS fixed points ahead. */
 static void make_frame(const vl_config_t *cfg, vl_stereo_frame_t *f, int64_t utime)
 {
     f->utime = utime;
     f->count = NUM_POINTS;
     for (uint32_t i = 0; i < NUM_POINTS; ++i) {
-        const double pw[3] = {8.0 + 1.5 * (double)i, -4.0 + 0.7 * (double)(i % 11), -1.0 + 0.3 * (double)(i % 7)};
-        observe(cfg, pw, (int32_t)i, &f->obs[i]);
+        double pw[3];
+        vl_test_point_ahead(i, pw);
+        vl_test_observe(&cfg->calibration, pw, (int32_t)i, &f->obs[i]);
     }
 }
 
+/* A forward-speed-only IMU sample. */
 static vl_imu_sample_t imu_at(int64_t utime, double vx)
 {
-    vl_imu_sample_t s;
-    memset(&s, 0, sizeof(s));
-    s.utime = utime;
-    s.linear_velocity[0] = vx;
-    return s;
+    return vl_test_imu_at(utime, vx, 0.0);
 }
 
 /* One step of a standing vehicle: the IMU sample, then the frame at the same time. */

@@ -21,11 +21,6 @@ void tearDown(void) {}
 
 /* ---- helpers ------------------------------------------------------------ */
 
-static void assert_close(const double *a, const double *b, int n, double tol)
-{
-    TEST_ASSERT_DOUBLE_WITHIN(tol, 0.0, vl_test_max_abs_diff(a, b, n));
-}
-
 static void identity(double *M, int n)
 {
     int i;
@@ -148,7 +143,7 @@ void test_skew_matches_cross_product(void)
     double S[9], Sw[3];
     vl_skew(v, S);
     vl_matmul(S, w, Sw, 3, 3, 1);
-    assert_close(Sw, cross, 3, 1e-15);
+    VL_TEST_ASSERT_CLOSE(Sw, cross, 3, 1e-15);
 }
 
 void test_matmul_variants_agree(void)
@@ -160,7 +155,7 @@ void test_matmul_variants_agree(void)
     double C[8], At[6], Bt[12], C2[8], C3[8];
     int i, j;
     vl_matmul(A, B, C, 2, 3, 4);
-    assert_close(C, expect, 8, 1e-15);
+    VL_TEST_ASSERT_CLOSE(C, expect, 8, 1e-15);
     for (i = 0; i < 2; ++i) {
         for (j = 0; j < 3; ++j) {
             At[j * 2 + i] = A[i * 3 + j];
@@ -173,8 +168,8 @@ void test_matmul_variants_agree(void)
     }
     vl_matmul_bt(A, Bt, C2, 2, 3, 4);
     vl_matmul_at(At, B, C3, 2, 3, 4);
-    assert_close(C2, expect, 8, 1e-15);
-    assert_close(C3, expect, 8, 1e-15);
+    VL_TEST_ASSERT_CLOSE(C2, expect, 8, 1e-15);
+    VL_TEST_ASSERT_CLOSE(C3, expect, 8, 1e-15);
 }
 
 /* ---- SO(3) -------------------------------------------------------------- */
@@ -189,7 +184,7 @@ void test_so3_exp_matches_series(void)
             vl_skew(phi, S);
             expm_series(S, E, 3);
             vl_so3_exp(phi, R);
-            assert_close(R, E, 9, 1e-14);
+            VL_TEST_ASSERT_CLOSE(R, E, 9, 1e-14);
         }
     }
 }
@@ -201,7 +196,7 @@ void test_so3_exp_is_orthonormal(void)
     vl_so3_exp(phi, R);
     vl_matmul_bt(R, R, RRt, 3, 3, 3);
     identity(I, 3);
-    assert_close(RRt, I, 9, 1e-15);
+    VL_TEST_ASSERT_CLOSE(RRt, I, 9, 1e-15);
 }
 
 void test_so3_log_round_trip_all_angles(void)
@@ -213,7 +208,7 @@ void test_so3_log_round_trip_all_angles(void)
             scaled_dir(k_dirs[d], k_angles[a], phi);
             vl_so3_exp(phi, R);
             vl_so3_log(R, back);
-            assert_close(back, phi, 3, 1e-14);
+            VL_TEST_ASSERT_CLOSE(back, phi, 3, 1e-14);
         }
     }
 }
@@ -228,7 +223,7 @@ void test_so3_log_round_trip_near_pi(void)
             scaled_dir(k_dirs[d], k_pi - eps[e], phi);
             vl_so3_exp(phi, R);
             vl_so3_log(R, back);
-            assert_close(back, phi, 3, 1e-13);
+            VL_TEST_ASSERT_CLOSE(back, phi, 3, 1e-13);
         }
     }
 }
@@ -244,7 +239,7 @@ void test_so3_log_at_pi_gives_valid_angle(void)
         /* +phi and -phi are the same rotation at pi: check the rotation and the angle. */
         TEST_ASSERT_DOUBLE_WITHIN(1e-14, k_pi, sqrt(back[0] * back[0] + back[1] * back[1] + back[2] * back[2]));
         vl_so3_exp(back, R2);
-        assert_close(R2, R, 9, 1e-14);
+        VL_TEST_ASSERT_CLOSE(R2, R, 9, 1e-14);
     }
 }
 
@@ -254,7 +249,7 @@ void test_so3_log_of_identity_is_zero(void)
     const double zero[3] = {0.0, 0.0, 0.0};
     identity(I, 3);
     vl_so3_log(I, phi);
-    assert_close(phi, zero, 3, 0.0);
+    VL_TEST_ASSERT_CLOSE(phi, zero, 3, 0.0);
 }
 
 void test_so3_left_jacobian_matches_series(void)
@@ -267,7 +262,7 @@ void test_so3_left_jacobian_matches_series(void)
             vl_skew(phi, S);
             jac_series(S, Js, 3);
             vl_so3_left_jacobian(phi, J);
-            assert_close(J, Js, 9, 1e-14);
+            VL_TEST_ASSERT_CLOSE(J, Js, 9, 1e-14);
         }
     }
 }
@@ -298,7 +293,7 @@ void test_so3_left_jacobian_finite_difference(void)
                     Jfd[3 * r + i] = (lp[r] - lm[r]) / (2.0 * h);
                 }
             }
-            assert_close(J, Jfd, 9, 1e-8);
+            VL_TEST_ASSERT_CLOSE(J, Jfd, 9, 1e-8);
         }
     }
 }
@@ -316,9 +311,9 @@ void test_so3_normalize_restores_orthonormality(void)
     vl_so3_normalize(Rn);
     vl_matmul_bt(Rn, Rn, RRt, 3, 3, 3);
     identity(I, 3);
-    assert_close(RRt, I, 9, 1e-15);
+    VL_TEST_ASSERT_CLOSE(RRt, I, 9, 1e-15);
     /* The projection moves it by about the size of the perturbation, not more. */
-    assert_close(Rn, R, 9, 1e-5);
+    VL_TEST_ASSERT_CLOSE(Rn, R, 9, 1e-5);
 }
 
 void test_so3_normalize_keeps_rotation_unchanged(void)
@@ -328,7 +323,7 @@ void test_so3_normalize_keeps_rotation_unchanged(void)
     vl_so3_exp(phi, R);
     memcpy(Rn, R, sizeof(R));
     vl_so3_normalize(Rn);
-    assert_close(Rn, R, 9, 1e-15);
+    VL_TEST_ASSERT_CLOSE(Rn, R, 9, 1e-15);
 }
 
 void test_so3_normalize_degenerate_input_gives_rotation(void)
@@ -344,7 +339,7 @@ void test_so3_normalize_degenerate_input_gives_rotation(void)
         vl_so3_normalize(R);
         vl_matmul_bt(R, R, RRt, 3, 3, 3);
         identity(I, 3);
-        assert_close(RRt, I, 9, 1e-14);
+        VL_TEST_ASSERT_CLOSE(RRt, I, 9, 1e-14);
         det = R[0] * (R[4] * R[8] - R[5] * R[7]) - R[1] * (R[3] * R[8] - R[5] * R[6])
               + R[2] * (R[3] * R[7] - R[4] * R[6]);
         TEST_ASSERT_DOUBLE_WITHIN(1e-14, 1.0, det);
@@ -360,7 +355,7 @@ void test_quaternion_to_rotation_known_value(void)
     const double expect[9] = {0, -1, 0, 1, 0, 0, 0, 0, 1};
     double R[9];
     vl_quaternion_to_rotation(q, R);
-    assert_close(R, expect, 9, 1e-15);
+    VL_TEST_ASSERT_CLOSE(R, expect, 9, 1e-15);
 }
 
 void test_rotation_to_quaternion_round_trip_all_branches(void)
@@ -378,9 +373,9 @@ void test_rotation_to_quaternion_round_trip_all_branches(void)
             /* q = [cos(t/2), sin(t/2) axis] */
             TEST_ASSERT_DOUBLE_WITHIN(1e-15, cos(0.5 * k_angles[a]), q[0]);
             vl_quaternion_to_rotation(q, R2);
-            assert_close(R2, R, 9, 1e-15);
+            VL_TEST_ASSERT_CLOSE(R2, R, 9, 1e-15);
             vl_rotation_to_quaternion(R2, q2);
-            assert_close(q2, q, 4, 1e-15);
+            VL_TEST_ASSERT_CLOSE(q2, q, 4, 1e-15);
         }
     }
     {
@@ -391,7 +386,7 @@ void test_rotation_to_quaternion_round_trip_all_branches(void)
             vl_so3_exp(phi, R);
             vl_rotation_to_quaternion(R, q);
             vl_quaternion_to_rotation(q, R2);
-            assert_close(R2, R, 9, 1e-15);
+            VL_TEST_ASSERT_CLOSE(R2, R, 9, 1e-15);
             TEST_ASSERT_DOUBLE_WITHIN(1e-15, 1.0, fabs(q[1 + d]));
         }
     }
@@ -419,7 +414,7 @@ void test_se3_exp_matches_series(void)
             expm_series(H, E, 4);
             vl_se3_exp(xi, R, p);
             pose_to_4x4(R, p, T);
-            assert_close(T, E, 16, 1e-13);
+            VL_TEST_ASSERT_CLOSE(T, E, 16, 1e-13);
         }
     }
 }
@@ -433,7 +428,7 @@ void test_se3_log_round_trip_all_angles(void)
             make_xi(d, k_angles[a], xi);
             vl_se3_exp(xi, R, p);
             vl_se3_log(R, p, back);
-            assert_close(back, xi, 6, 1e-13);
+            VL_TEST_ASSERT_CLOSE(back, xi, 6, 1e-13);
         }
     }
 }
@@ -448,7 +443,7 @@ void test_se3_log_round_trip_near_pi(void)
             make_xi(d, k_pi - eps[e], xi);
             vl_se3_exp(xi, R, p);
             vl_se3_log(R, p, back);
-            assert_close(back, xi, 6, 1e-12);
+            VL_TEST_ASSERT_CLOSE(back, xi, 6, 1e-12);
         }
     }
 }
@@ -467,8 +462,8 @@ void test_se3_adjoint_conjugates_exp(void)
     inverse(RT, pT, RTi, pTi);
     compose(R1, p1, RTi, pTi, Rl, pl);
     vl_se3_exp(Adxi, Rr, pr);
-    assert_close(Rl, Rr, 9, 1e-14);
-    assert_close(pl, pr, 3, 1e-14);
+    VL_TEST_ASSERT_CLOSE(Rl, Rr, 9, 1e-14);
+    VL_TEST_ASSERT_CLOSE(pl, pr, 3, 1e-14);
 }
 
 void test_se3_adjoint_of_exp_equals_exp_of_curly_hat(void)
@@ -482,7 +477,7 @@ void test_se3_adjoint_of_exp_equals_exp_of_curly_hat(void)
             vl_se3_adjoint(R, p, Ad);
             vl_se3_curly_hat(xi, ad);
             expm_series(ad, E, 6);
-            assert_close(Ad, E, 36, 1e-13);
+            VL_TEST_ASSERT_CLOSE(Ad, E, 36, 1e-13);
         }
     }
 }
@@ -504,7 +499,7 @@ void test_se3_curly_hat_is_commutator(void)
     for (i = 0; i < 16; ++i) {
         C[i] = XY[i] - YX[i];
     }
-    assert_close(Hz, C, 16, 1e-15);
+    VL_TEST_ASSERT_CLOSE(Hz, C, 16, 1e-15);
 }
 
 void test_se3_left_jacobian_matches_series(void)
@@ -517,7 +512,7 @@ void test_se3_left_jacobian_matches_series(void)
             vl_se3_curly_hat(xi, ad);
             jac_series(ad, Js, 6);
             vl_se3_left_jacobian(xi, J);
-            assert_close(J, Js, 36, 1e-13);
+            VL_TEST_ASSERT_CLOSE(J, Js, 36, 1e-13);
         }
     }
 }
@@ -535,7 +530,7 @@ void test_se3_left_jacobian_small_angle_accuracy(void)
             vl_se3_curly_hat(xi, ad);
             jac_series(ad, Js, 6);
             vl_se3_left_jacobian(xi, J);
-            assert_close(J, Js, 36, 1e-15);
+            VL_TEST_ASSERT_CLOSE(J, Js, 36, 1e-15);
         }
     }
     {
@@ -546,7 +541,7 @@ void test_se3_left_jacobian_small_angle_accuracy(void)
         xb[3] = 1.0;
         vl_se3_left_jacobian(xa, Ja);
         vl_se3_left_jacobian(xb, Jb);
-        assert_close(Ja, Jb, 36, 1e-15);
+        VL_TEST_ASSERT_CLOSE(Ja, Jb, 36, 1e-15);
     }
 }
 
@@ -562,7 +557,7 @@ void test_se3_left_jacobian_equals_adjoint_times_right(void)
             vl_se3_left_jacobian(xi, Jl);
             vl_se3_right_jacobian(xi, Jr);
             vl_matmul(Ad, Jr, AJr, 6, 6, 6);
-            assert_close(Jl, AJr, 36, 1e-13);
+            VL_TEST_ASSERT_CLOSE(Jl, AJr, 36, 1e-13);
         }
     }
 }
@@ -606,7 +601,7 @@ void test_se3_left_jacobian_finite_difference(void)
             make_xi(d, k_angles[a], xi);
             vl_se3_left_jacobian(xi, J);
             se3_jacobian_fd(xi, 1, Jfd);
-            assert_close(J, Jfd, 36, 1e-8);
+            VL_TEST_ASSERT_CLOSE(J, Jfd, 36, 1e-8);
         }
     }
 }
@@ -620,7 +615,7 @@ void test_se3_right_jacobian_finite_difference(void)
             make_xi(d, k_angles[a], xi);
             vl_se3_right_jacobian(xi, J);
             se3_jacobian_fd(xi, 0, Jfd);
-            assert_close(J, Jfd, 36, 1e-8);
+            VL_TEST_ASSERT_CLOSE(J, Jfd, 36, 1e-8);
         }
     }
 }
@@ -636,7 +631,7 @@ void test_circle_dot_matches_hat_product(void)
     vl_matmul(H, sh, Hs, 4, 4, 1);
     vl_circle_dot(s, D);
     vl_matmul(D, xi, Dxi, 3, 6, 1);
-    assert_close(Dxi, Hs, 3, 1e-15);
+    VL_TEST_ASSERT_CLOSE(Dxi, Hs, 3, 1e-15);
     TEST_ASSERT_DOUBLE_WITHIN(0.0, 0.0, Hs[3]);
 }
 
@@ -668,7 +663,7 @@ void test_circle_dot_finite_difference(void)
             Jfd[6 * r + i] = (yv[0][r] - yv[1][r]) / (2.0 * h);
         }
     }
-    assert_close(J, Jfd, 18, 1e-8);
+    VL_TEST_ASSERT_CLOSE(J, Jfd, 18, 1e-8);
 }
 
 int main(void)

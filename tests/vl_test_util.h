@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "vislam/vislam.h"
+#include "vl_stereo.h"
 
 /** Largest |a[i] - b[i]|; NaN anywhere gives NaN, so a comparison against it fails. */
 static inline double vl_test_max_abs_diff(const double *a, const double *b, int n)
@@ -21,6 +22,44 @@ static inline double vl_test_max_abs_diff(const double *a, const double *b, int 
         }
     }
     return m;
+}
+
+/** Unity assertion that every |a[i] - b[i]| <= tol (expands where Unity is included). */
+#define VL_TEST_ASSERT_CLOSE(a, b, n, tol) TEST_ASSERT_DOUBLE_WITHIN((tol), 0.0, vl_test_max_abs_diff((a), (b), (n)))
+
+/** The i-th of a fixed set of points ahead of a vehicle at the identity pose (IMU x forward), m. */
+static inline void vl_test_point_ahead(uint32_t i, double pw[3])
+{
+    pw[0] = 8.0 + 1.5 * (double)i;
+    pw[1] = -4.0 + 0.7 * (double)(i % 11);
+    pw[2] = -1.0 + 0.3 * (double)(i % 7);
+}
+
+/** The stereo observation of world point pw seen from the identity pose through cal. */
+static inline void vl_test_observe(const vl_calibration_t *cal, const double pw[3], int32_t id, vl_stereo_obs_t *o)
+{
+    const double *T = cal->cam_T_imu;
+    double c[3], y[3];
+    for (int i = 0; i < 3; ++i) {
+        c[i] = T[4 * i] * pw[0] + T[4 * i + 1] * pw[1] + T[4 * i + 2] * pw[2] + T[4 * i + 3];
+    }
+    vl_stereo_project(cal, c, y, NULL);
+    o->id = id;
+    o->u_left = y[0];
+    o->v_left = y[1];
+    o->u_right = y[2];
+    o->v_right = y[1];
+}
+
+/** An IMU sample: forward speed vx (m/s) and yaw rate wz (rad/s), the rest zero. */
+static inline vl_imu_sample_t vl_test_imu_at(int64_t utime, double vx, double wz)
+{
+    vl_imu_sample_t s;
+    memset(&s, 0, sizeof(s));
+    s.utime = utime;
+    s.linear_velocity[0] = vx;
+    s.angular_velocity[2] = wz;
+    return s;
 }
 
 /** The KITTI 0027 stereo rig: intrinsics, baseline, and (with_extrinsics) the real cam_T_imu, else identity. */

@@ -4,6 +4,9 @@
  *
  *   VL_ALLOC_REPORT=out.alloc LD_PRELOAD=libvl_alloc_counter.so vislamd ...
  *
+ * or linked into a test executable, which then reads the counts around the
+ * calls it measures (vl_alloc_counter.h; tests/test_alloc.c).
+ *
  * Every malloc, calloc, realloc and aligned allocation of the process (all
  * threads, libraries included) increments one counter, then goes to glibc's
  * allocator through its __libc_* entry points (no dlsym, so no recursion at
@@ -44,6 +47,7 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 
+#include "vl_alloc_counter.h"
 extern void *__libc_malloc(size_t size);
 extern void *__libc_calloc(size_t n, size_t size);
 extern void *__libc_realloc(void *p, size_t size);
@@ -53,6 +57,7 @@ extern void __libc_free(void *p);
 int mlockall(int flags);
 
 static uint64_t g_count;
+static uint64_t g_frees;
 static uint64_t g_count_at_arm;
 static uint64_t g_count_armed_thread;
 static __thread int t_is_armed_thread;
@@ -177,7 +182,20 @@ void *realloc(void *p, size_t size)
 
 void free(void *p)
 {
+    if (p != NULL) {
+        __atomic_fetch_add(&g_frees, 1, __ATOMIC_RELAXED);
+    }
     __libc_free(p);
+}
+
+uint64_t vl_alloc_counter_allocations(void)
+{
+    return __atomic_load_n(&g_count, __ATOMIC_RELAXED);
+}
+
+uint64_t vl_alloc_counter_frees(void)
+{
+    return __atomic_load_n(&g_frees, __ATOMIC_RELAXED);
 }
 
 void *memalign(size_t alignment, size_t size)
