@@ -379,28 +379,34 @@ void test_vl_config_load_ini_overlong_line_fails(void)
     expect_error(text, ":2:", "too long");
 }
 
+/* Writes cfg with writer into a fresh temporary file (g_path), reads it back and checks it equals. */
+static void assert_round_trip(int (*writer)(FILE *, const vl_config_t *, int), const vl_config_t *cfg)
+{
+    if (g_path[0] != '\0') {
+        unlink(g_path);
+    }
+    snprintf(g_path, sizeof(g_path), "/tmp/vl_test_cfg_XXXXXX");
+    int fd = mkstemp(g_path);
+    TEST_ASSERT_TRUE(fd >= 0);
+    FILE *f = fdopen(fd, "w");
+    TEST_ASSERT_NOT_NULL(f);
+    TEST_ASSERT_EQUAL_INT(0, writer(f, cfg, 1));
+    TEST_ASSERT_EQUAL_INT(0, fclose(f));
+    vl_config_t back;
+    vl_config_default(&back);
+    vl_config_file_info_t info;
+    TEST_ASSERT_EQUAL_INT_MESSAGE(VL_OK, vl_config_load_ini_ex(g_path, &back, &info, g_err, sizeof(g_err)), g_err);
+    TEST_ASSERT_TRUE(info.has_calibration);
+    assert_config_equal(cfg, &back);
+}
+
 void test_vl_config_write_ini_round_trips(void)
 {
     vl_config_t cfg;
     vl_config_default(&cfg);
     TEST_ASSERT_EQUAL_INT_MESSAGE(VL_OK, vl_config_load_ini(write_temp(k_full), &cfg, g_err, sizeof(g_err)), g_err);
     cfg.pixel_noise = 1.0 / 3.0; /* needs more than 15 digits */
-    unlink(g_path);
-
-    snprintf(g_path, sizeof(g_path), "/tmp/vl_test_cfg_XXXXXX");
-    int fd = mkstemp(g_path);
-    TEST_ASSERT_TRUE(fd >= 0);
-    FILE *f = fdopen(fd, "w");
-    TEST_ASSERT_NOT_NULL(f);
-    TEST_ASSERT_EQUAL_INT(0, vl_config_write_ini(f, &cfg, 1));
-    TEST_ASSERT_EQUAL_INT(0, fclose(f));
-
-    vl_config_t back;
-    vl_config_default(&back);
-    vl_config_file_info_t info;
-    TEST_ASSERT_EQUAL_INT_MESSAGE(VL_OK, vl_config_load_ini_ex(g_path, &back, &info, g_err, sizeof(g_err)), g_err);
-    TEST_ASSERT_TRUE(info.has_calibration);
-    assert_config_equal(&cfg, &back);
+    assert_round_trip(vl_config_write_ini, &cfg);
 }
 
 void test_vl_mode_names_round_trip(void)
@@ -668,22 +674,7 @@ void test_vl_config_write_ini_annotated_reads_back(void)
     cfg.calibration.baseline = 0.5371657;
     const double T[16] = {0, -1, 0, 0.1, 0, 0, -1, 0.2, 1, 0, 0, 0.3, 0, 0, 0, 1};
     memcpy(cfg.calibration.cam_T_imu, T, sizeof(T));
-    if (g_path[0] != '\0') {
-        unlink(g_path);
-    }
-    snprintf(g_path, sizeof(g_path), "/tmp/vl_test_cfg_XXXXXX");
-    int fd = mkstemp(g_path);
-    TEST_ASSERT_TRUE(fd >= 0);
-    FILE *f = fdopen(fd, "w");
-    TEST_ASSERT_NOT_NULL(f);
-    TEST_ASSERT_EQUAL_INT(0, vl_config_write_ini_annotated(f, &cfg, 1));
-    TEST_ASSERT_EQUAL_INT(0, fclose(f));
-    vl_config_t back;
-    vl_config_default(&back);
-    vl_config_file_info_t info;
-    TEST_ASSERT_EQUAL_INT_MESSAGE(VL_OK, vl_config_load_ini_ex(g_path, &back, &info, g_err, sizeof(g_err)), g_err);
-    TEST_ASSERT_TRUE(info.has_calibration);
-    assert_config_equal(&cfg, &back);
+    assert_round_trip(vl_config_write_ini_annotated, &cfg);
 }
 
 void test_vl_config_example_file_is_generated_from_schema(void)
