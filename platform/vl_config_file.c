@@ -13,13 +13,13 @@
 #include <ini.h>
 
 typedef enum {
-    KEY_DOUBLE,     /* double member of vl_config_t */
-    KEY_UINT32,     /* uint32_t member of vl_config_t */
-    KEY_BOOL,       /* int member of vl_config_t, true|false */
-    KEY_MODE,       /* vl_mode_t */
-    KEY_PRESET,     /* applied in the first pass */
-    KEY_OVERRIDE,   /* [calibration] override_log, not part of vl_config_t */
-    KEY_CAM_T_IMU   /* 16 numbers, may continue on indented lines */
+    KEY_DOUBLE,   /* double member of vl_config_t */
+    KEY_UINT32,   /* uint32_t member of vl_config_t */
+    KEY_BOOL,     /* int member of vl_config_t, true|false */
+    KEY_MODE,     /* vl_mode_t */
+    KEY_PRESET,   /* applied in the first pass */
+    KEY_OVERRIDE, /* [calibration] override_log, not part of vl_config_t */
+    KEY_CAM_T_IMU /* 16 numbers, may continue on indented lines */
 } key_type_t;
 
 typedef struct {
@@ -39,36 +39,93 @@ typedef struct {
 #define CFG_OFF(member) offsetof(vl_config_t, member)
 
 /* A row of the schema (vislam/vl_config_schema.h) as a key of this reader and writer. */
-#define SCHEMA_KEY(section_, key_, field_, type_, def_, min_, max_, min_open_, units_, meaning_)               \
-    {.section = section_, .name = key_, .type = KEY_##type_, .offset = CFG_OFF(field_),                          \
-     .min = (double)(min_), .max = (double)(max_), .min_open = min_open_, .units = units_, .meaning = meaning_},
+#define SCHEMA_KEY(section_, key_, field_, type_, def_, min_, max_, min_open_, units_, meaning_) \
+    {.section = section_,                                                                        \
+     .name = key_,                                                                               \
+     .type = KEY_##type_,                                                                        \
+     .offset = CFG_OFF(field_),                                                                  \
+     .min = (double)(min_),                                                                      \
+     .max = (double)(max_),                                                                      \
+     .min_open = min_open_,                                                                      \
+     .units = units_,                                                                            \
+     .meaning = meaning_},
 
 /* The schema's keys, plus the ones that are not plain values of vl_config_t: the preset
    (applied before every other key) and the calibration (a rig, checked as a whole, that
    normally comes from the log). Their texts live here because only the file has them. */
 static const key_def_t k_keys[] = {
-    {.section = "estimator", .name = "preset", .type = KEY_PRESET, .units = "", .example = "default",
+    {.section = "estimator",
+     .name = "preset",
+     .type = KEY_PRESET,
+     .units = "",
+     .example = "default",
      .meaning = "Tuning preset applied FIRST, wherever this line appears; the other keys of the file then "
                 "change it. default = the tuned defaults listed here; seed = the seed project's noise "
                 "(W = diag(1e-5 I3, 1e-4 I3) per 0.1 s step, V = 3500 I4), no offset states, no outlier "
                 "rejection. A preset keeps the calibration. Leave the key out to start from whatever the "
                 "program gives (vislam-run: the defaults, or --preset)."},
-    VL_CONFIG_KEYS(SCHEMA_KEY)
-    {.section = "calibration", .name = "override_log", .type = KEY_OVERRIDE, .units = "", .example = "false",
-     .meaning = "true: use this section even when the log carries a calibration."},
-    {.section = "calibration", .name = "fx", .type = KEY_DOUBLE, .offset = CFG_OFF(calibration.fx), .max = DBL_MAX,
-     .min_open = 1, .calibration = 1, .units = "px", .example = "700", .meaning = "Horizontal focal length."},
-    {.section = "calibration", .name = "fy", .type = KEY_DOUBLE, .offset = CFG_OFF(calibration.fy), .max = DBL_MAX,
-     .min_open = 1, .calibration = 1, .units = "px", .example = "700", .meaning = "Vertical focal length."},
-    {.section = "calibration", .name = "cx", .type = KEY_DOUBLE, .offset = CFG_OFF(calibration.cx), .min = -DBL_MAX,
-     .max = DBL_MAX, .calibration = 1, .units = "px", .example = "600",
+    VL_CONFIG_KEYS(SCHEMA_KEY){.section = "calibration",
+                               .name = "override_log",
+                               .type = KEY_OVERRIDE,
+                               .units = "",
+                               .example = "false",
+                               .meaning = "true: use this section even when the log carries a calibration."},
+    {.section = "calibration",
+     .name = "fx",
+     .type = KEY_DOUBLE,
+     .offset = CFG_OFF(calibration.fx),
+     .max = DBL_MAX,
+     .min_open = 1,
+     .calibration = 1,
+     .units = "px",
+     .example = "700",
+     .meaning = "Horizontal focal length."},
+    {.section = "calibration",
+     .name = "fy",
+     .type = KEY_DOUBLE,
+     .offset = CFG_OFF(calibration.fy),
+     .max = DBL_MAX,
+     .min_open = 1,
+     .calibration = 1,
+     .units = "px",
+     .example = "700",
+     .meaning = "Vertical focal length."},
+    {.section = "calibration",
+     .name = "cx",
+     .type = KEY_DOUBLE,
+     .offset = CFG_OFF(calibration.cx),
+     .min = -DBL_MAX,
+     .max = DBL_MAX,
+     .calibration = 1,
+     .units = "px",
+     .example = "600",
      .meaning = "Principal point, horizontal."},
-    {.section = "calibration", .name = "cy", .type = KEY_DOUBLE, .offset = CFG_OFF(calibration.cy), .min = -DBL_MAX,
-     .max = DBL_MAX, .calibration = 1, .units = "px", .example = "180", .meaning = "Principal point, vertical."},
-    {.section = "calibration", .name = "baseline", .type = KEY_DOUBLE, .offset = CFG_OFF(calibration.baseline),
-     .max = DBL_MAX, .min_open = 1, .calibration = 1, .units = "m", .example = "0.5", .meaning = "Stereo baseline."},
-    {.section = "calibration", .name = "cam_T_imu", .type = KEY_CAM_T_IMU, .offset = CFG_OFF(calibration.cam_T_imu),
-     .calibration = 1, .units = "",
+    {.section = "calibration",
+     .name = "cy",
+     .type = KEY_DOUBLE,
+     .offset = CFG_OFF(calibration.cy),
+     .min = -DBL_MAX,
+     .max = DBL_MAX,
+     .calibration = 1,
+     .units = "px",
+     .example = "180",
+     .meaning = "Principal point, vertical."},
+    {.section = "calibration",
+     .name = "baseline",
+     .type = KEY_DOUBLE,
+     .offset = CFG_OFF(calibration.baseline),
+     .max = DBL_MAX,
+     .min_open = 1,
+     .calibration = 1,
+     .units = "m",
+     .example = "0.5",
+     .meaning = "Stereo baseline."},
+    {.section = "calibration",
+     .name = "cam_T_imu",
+     .type = KEY_CAM_T_IMU,
+     .offset = CFG_OFF(calibration.cam_T_imu),
+     .calibration = 1,
+     .units = "",
      .example = "0 -1  0 0\n"
                 "0  0 -1 0\n"
                 "1  0  0 0\n"
@@ -85,21 +142,21 @@ static const key_def_t k_keys[] = {
    because this libinih is built without line numbers in the handler. */
 typedef struct {
     FILE *f;
-    int line;           /* 1-based number of the line inih is processing */
-    int at_line_start;  /* the previous chunk ended a line */
-    int indented;       /* current line starts with whitespace (an inih continuation) */
-    int too_long_line;  /* first line longer than inih's buffer, 0 if none */
+    int line;          /* 1-based number of the line inih is processing */
+    int at_line_start; /* the previous chunk ended a line */
+    int indented;      /* current line starts with whitespace (an inih continuation) */
+    int too_long_line; /* first line longer than inih's buffer, 0 if none */
 } line_reader_t;
 
 typedef struct {
     const char *path;
     line_reader_t *reader;
-    int pass;                 /* 1: find the preset; 2: apply every key */
-    vl_config_t cfg;          /* working copy, committed only on success */
+    int pass;        /* 1: find the preset; 2: apply every key */
+    vl_config_t cfg; /* working copy, committed only on success */
     vl_config_file_info_t info;
-    int seen_line[NUM_KEYS];  /* line where each key was set, 0 if not */
-    int last_key;             /* index of the previous key, for continuations; -1 none */
-    int cam_count;            /* numbers of cam_T_imu read so far */
+    int seen_line[NUM_KEYS]; /* line where each key was set, 0 if not */
+    int last_key;            /* index of the previous key, for continuations; -1 none */
+    int cam_count;           /* numbers of cam_T_imu read so far */
     int preset_line;
     char preset_value[32];
     char *err;
@@ -220,8 +277,8 @@ static int check_range(load_ctx_t *ctx, const key_def_t *k, double v)
         } else if (k->min == -DBL_MAX) {
             key_error(ctx, k->section, k->name, "%.17g is out of range: must be <= %.17g", v, k->max);
         } else {
-            key_error(ctx, k->section, k->name, "%.17g is out of range %s%.17g, %.17g]", v,
-                      k->min_open ? "(" : "[", k->min, k->max);
+            key_error(ctx, k->section, k->name, "%.17g is out of range %s%.17g, %.17g]", v, k->min_open ? "(" : "[",
+                      k->min, k->max);
         }
         return -1;
     }
@@ -279,8 +336,8 @@ static int check_rigid(const double *m)
             }
         }
     }
-    double det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) +
-                 m[2] * (m[4] * m[9] - m[5] * m[8]);
+    double det =
+        m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) + m[2] * (m[4] * m[9] - m[5] * m[8]);
     return det > 0.0 ? 0 : -1;
 }
 
@@ -422,8 +479,9 @@ static int parse_pass(load_ctx_t *ctx, FILE *f, int pass)
     int rc = ini_parse_stream(read_line, &reader, on_ini_entry, ctx);
     if (reader.too_long_line != 0) {
         ctx->failed = 0; /* the overlong line explains any later confusion best */
-        set_error(ctx, "%s:%d: line too long (inih reads at most 197 characters; split cam_T_imu "
-                       "over indented continuation lines)",
+        set_error(ctx,
+                  "%s:%d: line too long (inih reads at most 197 characters; split cam_T_imu "
+                  "over indented continuation lines)",
                   ctx->path, reader.too_long_line);
         return -1;
     }
@@ -435,8 +493,7 @@ static int parse_pass(load_ctx_t *ctx, FILE *f, int pass)
         return -1;
     }
     if (rc > 0) {
-        set_error(ctx, "%s:%d: syntax error (expected [section], key = value, or a ; or # comment)", ctx->path,
-                  rc);
+        set_error(ctx, "%s:%d: syntax error (expected [section], key = value, or a ; or # comment)", ctx->path, rc);
         return -1;
     }
     if (rc < 0) {
@@ -475,15 +532,17 @@ static int finish_calibration(load_ctx_t *ctx)
             return -1;
         }
         if (check_rigid(ctx->cfg.calibration.cam_T_imu) != 0) {
-            set_error(ctx, "%s:%d: [calibration] cam_T_imu: not a rigid transform (rotation must be "
-                           "orthonormal with det +1, last row 0 0 0 1)",
+            set_error(ctx,
+                      "%s:%d: [calibration] cam_T_imu: not a rigid transform (rotation must be "
+                      "orthonormal with det +1, last row 0 0 0 1)",
                       ctx->path, ctx->seen_line[cam_idx]);
             return -1;
         }
     }
     if (set != 0 && set != NUM_CALIBRATION_KEYS) {
-        set_error(ctx, "%s: [calibration] is incomplete: %s is missing (give fx fy cx cy baseline cam_T_imu, "
-                       "or none of them)",
+        set_error(ctx,
+                  "%s: [calibration] is incomplete: %s is missing (give fx fy cx cy baseline cam_T_imu, "
+                  "or none of them)",
                   ctx->path, missing);
         return -1;
     }
@@ -513,8 +572,8 @@ static void set_placeholder_calibration(vl_calibration_t *c)
     c->cam_T_imu[0] = c->cam_T_imu[5] = c->cam_T_imu[10] = c->cam_T_imu[15] = 1.0;
 }
 
-vl_status_t vl_config_load_ini_ex(const char *path, vl_config_t *cfg, vl_config_file_info_t *info,
-                                  char *err, size_t err_len)
+vl_status_t vl_config_load_ini_ex(const char *path, vl_config_t *cfg, vl_config_file_info_t *info, char *err,
+                                  size_t err_len)
 {
     if (err != NULL && err_len > 0) {
         err[0] = '\0';
@@ -568,8 +627,9 @@ vl_status_t vl_config_load_ini_ex(const char *path, vl_config_t *cfg, vl_config_
         set_placeholder_calibration(&checked.calibration);
     }
     if (vl_config_check(&checked) != VL_OK) {
-        set_error(ctx, "%s: the resulting configuration is rejected by vl_config_check "
-                       "(every key is in range, so a combination of values is invalid)",
+        set_error(ctx,
+                  "%s: the resulting configuration is rejected by vl_config_check "
+                  "(every key is in range, so a combination of values is invalid)",
                   path);
         goto done;
     }
@@ -745,7 +805,8 @@ static void format_attributes(char *buf, size_t len, const key_def_t *k)
         break;
     }
     char def[48] = "";
-    const int from_schema = k->type == KEY_DOUBLE || k->type == KEY_UINT32 || k->type == KEY_BOOL || k->type == KEY_MODE;
+    const int from_schema =
+        k->type == KEY_DOUBLE || k->type == KEY_UINT32 || k->type == KEY_BOOL || k->type == KEY_MODE;
     if (from_schema && !k->calibration) {
         vl_config_t d;
         vl_config_default(&d);
@@ -795,12 +856,13 @@ static const char *section_comment(const char *section, write_style_t style)
                "nothing on clean data.";
     }
     if (strcmp(section, "calibration") == 0) {
-        return style == WRITE_EXAMPLE ? "Stereo rig. Normally it comes from the log's VISLAM_CALIB message and this "
-               "section is left out. When given, all six values are required (fx fy cx cy baseline cam_T_imu); "
-               "the log's calibration still wins unless override_log = true. The numbers below are only an "
-               "illustration, not a real rig."
-               : "Stereo rig. When given, all six values are required (fx fy cx cy baseline cam_T_imu); the "
-               "log's calibration still wins unless override_log = true.";
+        return style == WRITE_EXAMPLE
+                   ? "Stereo rig. Normally it comes from the log's VISLAM_CALIB message and this "
+                     "section is left out. When given, all six values are required (fx fy cx cy baseline cam_T_imu); "
+                     "the log's calibration still wins unless override_log = true. The numbers below are only an "
+                     "illustration, not a real rig."
+                   : "Stereo rig. When given, all six values are required (fx fy cx cy baseline cam_T_imu); the "
+                     "log's calibration still wins unless override_log = true.";
     }
     return NULL;
 }

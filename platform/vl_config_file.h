@@ -32,10 +32,10 @@ typedef enum {
 
 /** What a loaded file said beyond the configuration values themselves. */
 typedef struct {
-    vl_preset_t preset;   /**< preset applied before the other keys, or VL_PRESET_NONE */
-    int has_calibration;  /**< nonzero: the file set the whole [calibration] (fx fy cx cy baseline cam_T_imu) */
-    int override_log;     /**< nonzero: the file's calibration wins over a log's calibration message */
-    unsigned keys_set;    /**< number of keys the file set */
+    vl_preset_t preset;  /**< preset applied before the other keys, or VL_PRESET_NONE */
+    int has_calibration; /**< nonzero: the file set the whole [calibration] (fx fy cx cy baseline cam_T_imu) */
+    int override_log;    /**< nonzero: the file's calibration wins over a log's calibration message */
+    unsigned keys_set;   /**< number of keys the file set */
 } vl_config_file_info_t;
 
 /**
@@ -52,8 +52,8 @@ typedef struct {
 vl_status_t vl_config_load_ini(const char *path, vl_config_t *cfg, char *err, size_t err_len);
 
 /** As vl_config_load_ini, also reporting preset and calibration details in @p info (may be NULL). */
-vl_status_t vl_config_load_ini_ex(const char *path, vl_config_t *cfg, vl_config_file_info_t *info,
-                                  char *err, size_t err_len);
+vl_status_t vl_config_load_ini_ex(const char *path, vl_config_t *cfg, vl_config_file_info_t *info, char *err,
+                                  size_t err_len);
 
 /**
  * Writes @p cfg as an INI file that vl_config_load_ini reads back to the same
@@ -80,7 +80,6 @@ int vl_config_write_example(FILE *f);
 
 /** "imu_only", "mapping", "slam", or "?" */
 const char *vl_mode_name(vl_mode_t mode);
-
 
 /** "default", "seed", or "none" */
 const char *vl_preset_name(vl_preset_t preset);

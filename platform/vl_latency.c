@@ -34,8 +34,7 @@ size_t vl_latency_bucket_index(int64_t us)
     const int e = floor_log2((uint64_t)us);
     const int shift = e - VL_LATENCY_SUB_BITS;
     const size_t mantissa = (size_t)((uint64_t)us >> shift); /* SUB .. 2*SUB-1 */
-    return 2 * VL_LATENCY_SUB + (size_t)(e - VL_LATENCY_SUB_BITS - 1) * VL_LATENCY_SUB +
-           (mantissa - VL_LATENCY_SUB);
+    return 2 * VL_LATENCY_SUB + (size_t)(e - VL_LATENCY_SUB_BITS - 1) * VL_LATENCY_SUB + (mantissa - VL_LATENCY_SUB);
 }
 
 int64_t vl_latency_bucket_lower(size_t index)

@@ -224,8 +224,8 @@ vl_log_guard_result_t vl_log_guard_next(vl_log_guard_t *g, FILE *f)
                  (int)h.channel_bytes, (int)h.data_bytes);
     }
     if (runs_to_end) {
-        snprintf(g->error, sizeof(g->error), "offset %ld: %s%s; no valid event after it (%ld bytes to the end)",
-                 offset, vl_log_check_str(c), detail, next - offset);
+        snprintf(g->error, sizeof(g->error), "offset %ld: %s%s; no valid event after it (%ld bytes to the end)", offset,
+                 vl_log_check_str(c), detail, next - offset);
     } else {
         snprintf(g->error, sizeof(g->error), "offset %ld: %s%s; skipped %ld bytes to the next event", offset,
                  vl_log_check_str(c), detail, next - offset);

@@ -49,16 +49,16 @@ extern "C" {
 
 /** What the check of one event found. */
 typedef enum {
-    VL_LOG_CHECK_OK = 0,              /**< a whole, plausible event */
-    VL_LOG_CHECK_END = 1,             /**< no byte left: the clean end of the file */
-    VL_LOG_CHECK_CUT_HEADER = 2,      /**< fewer header bytes left than a header needs */
-    VL_LOG_CHECK_BAD_SYNC = 3,        /**< the first four bytes are not the sync word */
+    VL_LOG_CHECK_OK = 0,                 /**< a whole, plausible event */
+    VL_LOG_CHECK_END = 1,                /**< no byte left: the clean end of the file */
+    VL_LOG_CHECK_CUT_HEADER = 2,         /**< fewer header bytes left than a header needs */
+    VL_LOG_CHECK_BAD_SYNC = 3,           /**< the first four bytes are not the sync word */
     VL_LOG_CHECK_BAD_CHANNEL_LENGTH = 4, /**< channel length outside 1..VL_LOG_MAX_CHANNEL_BYTES */
-    VL_LOG_CHECK_BAD_DATA_LENGTH = 5, /**< data length outside 0..VL_LOG_MAX_DATA_BYTES */
-    VL_LOG_CHECK_CUT_EVENT = 6,       /**< valid lengths, but the event runs past the end of the file */
-    VL_LOG_CHECK_BAD_CHANNEL = 7,     /**< channel name not printable ASCII */
-    VL_LOG_CHECK_NO_NEXT_SYNC = 8,    /**< the bytes after the event neither end the file nor start an event */
-    VL_LOG_CHECK_IO_ERROR = 9         /**< seek or read failed */
+    VL_LOG_CHECK_BAD_DATA_LENGTH = 5,    /**< data length outside 0..VL_LOG_MAX_DATA_BYTES */
+    VL_LOG_CHECK_CUT_EVENT = 6,          /**< valid lengths, but the event runs past the end of the file */
+    VL_LOG_CHECK_BAD_CHANNEL = 7,        /**< channel name not printable ASCII */
+    VL_LOG_CHECK_NO_NEXT_SYNC = 8,       /**< the bytes after the event neither end the file nor start an event */
+    VL_LOG_CHECK_IO_ERROR = 9            /**< seek or read failed */
 } vl_log_check_t;
 
 /** The fixed part of an event header, decoded. */
@@ -81,15 +81,15 @@ const char *vl_log_check_str(vl_log_check_t c);
 
 /** Guard state and counts for one pass over a log. */
 typedef struct {
-    long file_size;          /**< bytes */
-    uint64_t events;         /**< events that passed */
-    uint64_t damaged;        /**< damaged spots met (each one report, one resynchronization) */
-    uint64_t bytes_skipped;  /**< bytes skipped while resynchronizing */
-    int truncated;           /**< the file ends inside an event (cut header or payload) */
-    int failed;              /**< a seek or read failed: reading stopped */
-    long offset;             /**< where the latest damaged spot starts, bytes */
-    vl_log_check_t what;     /**< what was wrong there */
-    char error[224];         /**< the latest damaged spot, in words, with its offset */
+    long file_size;         /**< bytes */
+    uint64_t events;        /**< events that passed */
+    uint64_t damaged;       /**< damaged spots met (each one report, one resynchronization) */
+    uint64_t bytes_skipped; /**< bytes skipped while resynchronizing */
+    int truncated;          /**< the file ends inside an event (cut header or payload) */
+    int failed;             /**< a seek or read failed: reading stopped */
+    long offset;            /**< where the latest damaged spot starts, bytes */
+    vl_log_check_t what;    /**< what was wrong there */
+    char error[224];        /**< the latest damaged spot, in words, with its offset */
 } vl_log_guard_t;
 
 /**

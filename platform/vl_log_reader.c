@@ -32,8 +32,8 @@ static int copy_channel(char dst[VL_LOG_CHANNEL_MAX], const char *src, const cha
     return 0;
 }
 
-int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channels_t *channels,
-                       char *err, size_t err_len)
+int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channels_t *channels, char *err,
+                       size_t err_len)
 {
     if (r == NULL || path == NULL) {
         if (err != NULL && err_len > 0) {
@@ -58,8 +58,7 @@ int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channe
     lcm_eventlog_t *log = lcm_eventlog_create(path, "r");
     if (log == NULL) {
         if (err != NULL && err_len > 0) {
-            snprintf(err, err_len, "%s: cannot open log: %s", path,
-                     errno != 0 ? strerror(errno) : "unknown error");
+            snprintf(err, err_len, "%s: cannot open log: %s", path, errno != 0 ? strerror(errno) : "unknown error");
         }
         return -1;
     }
@@ -114,8 +113,7 @@ vl_log_event_kind_t vl_log_event_decode(vl_log_decoder_t *d, vl_log_event_kind_t
         }
         break;
     case VL_LOG_EVENT_CALIBRATION:
-        ok = check_decoded(vislam_calibration_t_decode(data, 0, len, &d->calibration), len, "vislam.calibration_t",
-                           ev);
+        ok = check_decoded(vislam_calibration_t_decode(data, 0, len, &d->calibration), len, "vislam.calibration_t", ev);
         if (ok) {
             vl_msg_to_calibration(&d->calibration, &ev->calibration, &ev->calibration_utime);
         }

@@ -34,12 +34,11 @@ extern "C" {
 /** Longest channel name the reader stores, terminator included. */
 #define VL_LOG_CHANNEL_MAX 64
 
-
 /** Channels the reader decodes; NULL or empty members take the defaults. */
 typedef struct {
-    const char *imu;          /**< vislam.imu_t */
-    const char *features;     /**< vislam.stereo_frame_t */
-    const char *calibration;  /**< vislam.calibration_t */
+    const char *imu;         /**< vislam.imu_t */
+    const char *features;    /**< vislam.stereo_frame_t */
+    const char *calibration; /**< vislam.calibration_t */
 } vl_log_channels_t;
 
 /** What vl_log_reader_next produced. */
@@ -56,15 +55,15 @@ typedef enum {
 /** One decoded event. Large (holds a full frame): keep it static or on the heap. */
 typedef struct {
     vl_log_event_kind_t kind;
-    int64_t event_number;            /**< LCM event number in the log */
-    int64_t log_utime;               /**< us, time the logger received the event */
-    char channel[VL_LOG_CHANNEL_MAX];/**< channel name (truncated if longer) */
-    vl_imu_sample_t imu;             /**< kind == VL_LOG_EVENT_IMU */
-    vl_stereo_frame_t frame;         /**< kind == VL_LOG_EVENT_FRAME */
-    vl_calibration_t calibration;    /**< kind == VL_LOG_EVENT_CALIBRATION */
-    int64_t calibration_utime;       /**< us, stamp of the calibration message */
-    char error[256];                 /**< kind == VL_LOG_EVENT_DECODE_ERROR or _CORRUPT: what went wrong */
-    vl_log_event_kind_t decode_kind; /**< kind == VL_LOG_EVENT_DECODE_ERROR: what the payload should have been */
+    int64_t event_number;             /**< LCM event number in the log */
+    int64_t log_utime;                /**< us, time the logger received the event */
+    char channel[VL_LOG_CHANNEL_MAX]; /**< channel name (truncated if longer) */
+    vl_imu_sample_t imu;              /**< kind == VL_LOG_EVENT_IMU */
+    vl_stereo_frame_t frame;          /**< kind == VL_LOG_EVENT_FRAME */
+    vl_calibration_t calibration;     /**< kind == VL_LOG_EVENT_CALIBRATION */
+    int64_t calibration_utime;        /**< us, stamp of the calibration message */
+    char error[256];                  /**< kind == VL_LOG_EVENT_DECODE_ERROR or _CORRUPT: what went wrong */
+    vl_log_event_kind_t decode_kind;  /**< kind == VL_LOG_EVENT_DECODE_ERROR: what the payload should have been */
 } vl_log_event_t;
 
 /** Decoding storage of vl_log_event_decode: the message types are fixed-size, so decoding never allocates. */
@@ -89,23 +88,23 @@ vl_log_event_kind_t vl_log_event_decode(vl_log_decoder_t *d, vl_log_event_kind_t
 
 /** Counts since vl_log_reader_open. */
 typedef struct {
-    uint64_t events;         /**< events read from the file, every channel */
-    uint64_t imu;            /**< IMU events decoded */
-    uint64_t frames;         /**< frame events decoded */
-    uint64_t calibrations;   /**< calibration events decoded */
-    uint64_t decode_errors;  /**< events on known channels that failed to decode */
-    uint64_t skipped;        /**< events on other channels */
-    uint64_t corrupt;        /**< damaged spots (invalid event headers or junk), each skipped */
-    uint64_t bytes_skipped;  /**< bytes skipped over damaged spots */
+    uint64_t events;        /**< events read from the file, every channel */
+    uint64_t imu;           /**< IMU events decoded */
+    uint64_t frames;        /**< frame events decoded */
+    uint64_t calibrations;  /**< calibration events decoded */
+    uint64_t decode_errors; /**< events on known channels that failed to decode */
+    uint64_t skipped;       /**< events on other channels */
+    uint64_t corrupt;       /**< damaged spots (invalid event headers or junk), each skipped */
+    uint64_t bytes_skipped; /**< bytes skipped over damaged spots */
 } vl_log_reader_stats_t;
 
 /** Reader state; members are private. */
 typedef struct {
-    void *log;  /**< lcm_eventlog_t */
+    void *log; /**< lcm_eventlog_t */
     char imu_channel[VL_LOG_CHANNEL_MAX];
     char features_channel[VL_LOG_CHANNEL_MAX];
     char calibration_channel[VL_LOG_CHANNEL_MAX];
-    vl_log_guard_t guard;  /**< header checks and resynchronization */
+    vl_log_guard_t guard; /**< header checks and resynchronization */
     int ended;
     vl_log_reader_stats_t stats;
     vl_log_decoder_t decoder;
@@ -120,8 +119,8 @@ void vl_log_channels_default(vl_log_channels_t *channels);
  * @return 0, or -1 (errno-style message in @p err) if the file cannot be opened
  *         or a channel name is too long.
  */
-int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channels_t *channels,
-                       char *err, size_t err_len);
+int vl_log_reader_open(vl_log_reader_t *r, const char *path, const vl_log_channels_t *channels, char *err,
+                       size_t err_len);
 
 /**
  * Reads the next event on a known channel, skipping others.

@@ -25,9 +25,9 @@ extern "C" {
 
 /** Result of a message conversion. */
 typedef enum {
-    VL_MSG_OK = 0,              /**< Converted. */
-    VL_MSG_ERR_NULL = -1,       /**< A pointer argument was NULL. */
-    VL_MSG_ERR_COUNT = -2       /**< num_features outside 0..VISLAM_STEREO_FRAME_T_MAX_FEATURES
+    VL_MSG_OK = 0,        /**< Converted. */
+    VL_MSG_ERR_NULL = -1, /**< A pointer argument was NULL. */
+    VL_MSG_ERR_COUNT = -2 /**< num_features outside 0..VISLAM_STEREO_FRAME_T_MAX_FEATURES
                                      (the output was still filled, with the count clamped). */
 } vl_msg_status_t;
 

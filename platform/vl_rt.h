@@ -17,9 +17,9 @@ extern "C" {
 
 /** Outcome of a real-time set-up call. */
 typedef enum {
-    VL_RT_OK = 0,        /**< Done; the message says what was done. */
-    VL_RT_REFUSED = -1,  /**< The machine refused (permission, limit, unsupported); the process is unchanged. */
-    VL_RT_INVALID = -2   /**< The argument is out of range; nothing was tried. */
+    VL_RT_OK = 0,       /**< Done; the message says what was done. */
+    VL_RT_REFUSED = -1, /**< The machine refused (permission, limit, unsupported); the process is unchanged. */
+    VL_RT_INVALID = -2  /**< The argument is out of range; nothing was tried. */
 } vl_rt_status_t;
 
 /**

@@ -102,8 +102,8 @@ static void on_calibration(vl_session_t *s, const vl_calibration_t *calib, int64
     }
     if (s->inputs_fed) {
         if (s->n.calibrations_changed++ == 0) {
-            fprintf(stderr, "%s: warning: calibration changed after inputs (utime %" PRId64 "); ignored\n",
-                    program(s), utime);
+            fprintf(stderr, "%s: warning: calibration changed after inputs (utime %" PRId64 "); ignored\n", program(s),
+                    utime);
         }
         return;
     }
@@ -300,8 +300,8 @@ int32_t vl_session_health(const vl_session_t *s)
     }
     const uint64_t inputs = n->imu_in + n->frames_in;
     const uint64_t used = n->imu_used + n->frames_used;
-    if (s->initialized &&
-        ((state & VL_STATE_NO_CLOCK) || (inputs != at->imu_in + at->frames_in && used == at->imu_used + at->frames_used))) {
+    if (s->initialized && ((state & VL_STATE_NO_CLOCK) ||
+                           (inputs != at->imu_in + at->frames_in && used == at->imu_used + at->frames_used))) {
         h |= VISLAM_STATUS_T_HEALTH_NOT_TRACKING;
     }
     return h;

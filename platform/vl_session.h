@@ -88,8 +88,8 @@ typedef enum {
 
 /** What on_event reports. */
 typedef enum {
-    VL_SESSION_EVENT_CALIBRATED = 1,    /**< a calibration message took effect (vl_init ran with it) */
-    VL_SESSION_EVENT_REINITIALIZED = 2  /**< the core re-initialized (new timeline or divergence) */
+    VL_SESSION_EVENT_CALIBRATED = 1,   /**< a calibration message took effect (vl_init ran with it) */
+    VL_SESSION_EVENT_REINITIALIZED = 2 /**< the core re-initialized (new timeline or divergence) */
 } vl_session_event_t;
 
 /** Output callbacks; any may be NULL. They run inside vl_session_input. */
@@ -128,13 +128,13 @@ typedef struct {
     vl_config_t cfg;
     vl_session_options_t opt;
     int initialized;
-    int inputs_fed;             /* once inputs reached the core, a new calibration cannot restart it */
-    const char *calib_source;   /* "none", "config" or "log" */
+    int inputs_fed;           /* once inputs reached the core, a new calibration cannot restart it */
+    const char *calib_source; /* "none", "config" or "log" */
     vl_session_counters_t n;
     uint64_t propagate_status[VL_SESSION_STATUS_SLOTS];
     uint64_t update_status[VL_SESSION_STATUS_SLOTS];
-    int64_t last_input_utime;   /* us, the last input the core used */
-    vl_pose_t pose;             /* the latest pose handed out */
+    int64_t last_input_utime; /* us, the last input the core used */
+    vl_pose_t pose;           /* the latest pose handed out */
     /* logger */
     uint64_t log_seen[4];
     uint64_t log_suppressed;

@@ -30,9 +30,9 @@ extern "C" {
 /** Writer state; members are private. */
 typedef struct {
     FILE *f;
-    uint64_t lines;                          /**< lines written */
-    int error;                               /**< a write or flush failed */
-    char buffer[4096];                        /**< stdio buffer (setvbuf) */
+    uint64_t lines;    /**< lines written */
+    int error;         /**< a write or flush failed */
+    char buffer[4096]; /**< stdio buffer (setvbuf) */
 } vl_trajectory_file_t;
 
 /**

@@ -107,60 +107,59 @@ static void expect_error(const char *text, const char *needle1, const char *need
     assert_config_equal(&before, &cfg); /* untouched on failure */
 }
 
-static const char *k_full =
-    "; every key, none at its default\n"
-    "[estimator]\n"
-    "mode = mapping\n"
-    "estimate_input_offsets = false\n"
-    "max_propagation_dt = 0.25\n"
-    "max_update_observations = 20\n"
-    "\n"
-    "[noise]\n"
-    "linear_velocity = 0.7\n"
-    "angular_velocity = 0.07   ; inline comment\n"
-    "linear_offset_prior = 0.2\n"
-    "angular_offset_prior = 0.02\n"
-    "linear_offset_walk = 2e-3\n"
-    "angular_offset_walk = 2e-4\n"
-    "pixel = 2.5\n"
-    "\n"
-    "# hash comments too\n"
-    "[landmarks]\n"
-    "max_landmarks = 17\n"
-    "max_unseen_frames = 3\n"
-    "min_disparity = 0.5\n"
-    "max_depth = 80\n"
-    "min_track_length = 3\n"
-    "\n"
-    "[outliers]\n"
-    "gate_chi2 = 9.5\n"
-    "max_broken_fraction = 0.45\n"
-    "ransac_hypotheses = 12\n"
-    "ransac_threshold = 2.5\n"
-    "\n"
-    "[limits]\n"
-    "max_time_jump = 3.5\n"
-    "new_timeline_samples = 7\n"
-    "max_speed = 42\n"
-    "max_rotation_rate = 6.5\n"
-    "image_width = 1241\n"
-    "image_height = 376\n"
-    "image_margin = 8\n"
-    "max_disparity = 250\n"
-    "max_imu_silence = 0.75\n"
-    "divergence_frames = 0\n"
-    "\n"
-    "[calibration]\n"
-    "override_log = true\n"
-    "fx = 721.5\n"
-    "fy = 721.6\n"
-    "cx = 609.5\n"
-    "cy = 172.8\n"
-    "baseline = 0.537\n"
-    "cam_T_imu = 0 -1 0 0.1,\n"
-    "            0 0 -1 0.2,\n"
-    "            1 0 0 0.3,\n"
-    "            0 0 0 1\n";
+static const char *k_full = "; every key, none at its default\n"
+                            "[estimator]\n"
+                            "mode = mapping\n"
+                            "estimate_input_offsets = false\n"
+                            "max_propagation_dt = 0.25\n"
+                            "max_update_observations = 20\n"
+                            "\n"
+                            "[noise]\n"
+                            "linear_velocity = 0.7\n"
+                            "angular_velocity = 0.07   ; inline comment\n"
+                            "linear_offset_prior = 0.2\n"
+                            "angular_offset_prior = 0.02\n"
+                            "linear_offset_walk = 2e-3\n"
+                            "angular_offset_walk = 2e-4\n"
+                            "pixel = 2.5\n"
+                            "\n"
+                            "# hash comments too\n"
+                            "[landmarks]\n"
+                            "max_landmarks = 17\n"
+                            "max_unseen_frames = 3\n"
+                            "min_disparity = 0.5\n"
+                            "max_depth = 80\n"
+                            "min_track_length = 3\n"
+                            "\n"
+                            "[outliers]\n"
+                            "gate_chi2 = 9.5\n"
+                            "max_broken_fraction = 0.45\n"
+                            "ransac_hypotheses = 12\n"
+                            "ransac_threshold = 2.5\n"
+                            "\n"
+                            "[limits]\n"
+                            "max_time_jump = 3.5\n"
+                            "new_timeline_samples = 7\n"
+                            "max_speed = 42\n"
+                            "max_rotation_rate = 6.5\n"
+                            "image_width = 1241\n"
+                            "image_height = 376\n"
+                            "image_margin = 8\n"
+                            "max_disparity = 250\n"
+                            "max_imu_silence = 0.75\n"
+                            "divergence_frames = 0\n"
+                            "\n"
+                            "[calibration]\n"
+                            "override_log = true\n"
+                            "fx = 721.5\n"
+                            "fy = 721.6\n"
+                            "cx = 609.5\n"
+                            "cy = 172.8\n"
+                            "baseline = 0.537\n"
+                            "cam_T_imu = 0 -1 0 0.1,\n"
+                            "            0 0 -1 0.2,\n"
+                            "            1 0 0 0.3,\n"
+                            "            0 0 0 1\n";
 
 void test_vl_config_load_ini_full_file_sets_every_key(void)
 {
@@ -434,8 +433,8 @@ typedef struct {
     int min_open;
 } schema_row_t;
 
-#define SCHEMA_ROW(section, key, field, type, def, min, max, min_open, units, meaning)                         \
-    {section, key, VL_CONFIG_##type, offsetof(vl_config_t, field), sizeof(((vl_config_t *)0)->field),          \
+#define SCHEMA_ROW(section, key, field, type, def, min, max, min_open, units, meaning)                                \
+    {section,       key,           VL_CONFIG_##type, offsetof(vl_config_t, field), sizeof(((vl_config_t *)0)->field), \
      (double)(min), (double)(max), min_open},
 static const schema_row_t k_rows[] = {VL_CONFIG_KEYS(SCHEMA_ROW)};
 #undef SCHEMA_ROW
@@ -654,8 +653,8 @@ void test_vl_config_write_ini_prints_shortest_numbers(void)
     size_t len = 0;
     char *text = read_whole(g_path, &len);
     TEST_ASSERT_NOT_NULL(text);
-    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(text, "\nlinear_offset_prior = 0.1\n"), text);     /* not 0.10000000000000001 */
-    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(text, "\nmin_disparity = 1e-06\n"), text);         /* not 9.99...95e-07 */
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(text, "\nlinear_offset_prior = 0.1\n"), text); /* not 0.10000000000000001 */
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(text, "\nmin_disparity = 1e-06\n"), text);     /* not 9.99...95e-07 */
     TEST_ASSERT_NOT_NULL_MESSAGE(strstr(text, "\nangular_velocity = 0.09999999999999999\n"), text); /* 16 digits */
     free(text);
     vl_config_t back;
@@ -711,8 +710,8 @@ void test_vl_config_example_file_is_generated_from_schema(void)
                  "tools/vislam.ini is not what the schema (core/include/vislam/vl_config_schema.h) gives, "
                  "first at line %d: committed \"%.*s\", generated \"%.*s\". Regenerate it with: "
                  "%s/bin/test_config_file --write-example %s",
-                 line, (int)strcspn(committed + start, "\n"), committed + start,
-                 (int)strcspn(generated + start, "\n"), generated + start, VL_BINARY_DIR, path);
+                 line, (int)strcspn(committed + start, "\n"), committed + start, (int)strcspn(generated + start, "\n"),
+                 generated + start, VL_BINARY_DIR, path);
         free(committed);
         free(generated);
         TEST_FAIL_MESSAGE(msg);

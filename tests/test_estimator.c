@@ -174,10 +174,10 @@ void test_update_counts_invalid_observations(void)
     cfg.min_track_length = 1;
     start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, 6, 0);
-    frame.obs[0].u_left = NAN;            /* non-finite */
-    frame.obs[1].id = -3;                 /* negative id */
+    frame.obs[0].u_left = NAN;                        /* non-finite */
+    frame.obs[1].id = -3;                             /* negative id */
     frame.obs[2].u_right = frame.obs[2].u_left + 2.0; /* negative disparity */
-    frame.obs[3].id = frame.obs[4].id;    /* duplicate id */
+    frame.obs[3].id = frame.obs[4].id;                /* duplicate id */
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
     const vl_counters_t *c = vl_get_counters(&est);
     TEST_ASSERT_EQUAL_UINT64(3, c->observations_invalid);
@@ -521,7 +521,8 @@ void test_window_never_exceeds_its_limit_and_keeps_observed_landmarks(void)
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
     TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
     TEST_ASSERT_EQUAL_UINT64((uint64_t)(5), (uint64_t)(sink.count));
-    TEST_ASSERT_EQUAL_UINT64(vl_get_counters(&est)->landmarks_initialized, vl_get_counters(&est)->landmarks_marginalized);
+    TEST_ASSERT_EQUAL_UINT64(vl_get_counters(&est)->landmarks_initialized,
+                             vl_get_counters(&est)->landmarks_marginalized);
 }
 
 void test_window_admits_the_largest_disparity_first(void)

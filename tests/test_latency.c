@@ -102,7 +102,8 @@ static void test_vl_latency_bucket_index_at_powers_of_two(void)
 
 static void test_vl_latency_overflow_goes_to_its_own_bucket(void)
 {
-    TEST_ASSERT_EQUAL_UINT64((uint64_t)(VL_LATENCY_BUCKETS - 1), (uint64_t)vl_latency_bucket_index(VL_LATENCY_OVERFLOW_US - 1));
+    TEST_ASSERT_EQUAL_UINT64((uint64_t)(VL_LATENCY_BUCKETS - 1),
+                             (uint64_t)vl_latency_bucket_index(VL_LATENCY_OVERFLOW_US - 1));
     TEST_ASSERT_EQUAL_UINT64((uint64_t)(VL_LATENCY_BUCKETS), (uint64_t)vl_latency_bucket_index(VL_LATENCY_OVERFLOW_US));
     TEST_ASSERT_EQUAL_UINT64((uint64_t)(VL_LATENCY_BUCKETS), (uint64_t)vl_latency_bucket_index(INT64_MAX));
     vl_latency_record(&g_h, 10);
@@ -157,8 +158,7 @@ static void test_vl_latency_percentile_matches_sorted_reference(void)
         const int64_t ref = reference_percentile(values, N, percents[k]);
         const int64_t got = vl_latency_percentile(&g_h, percents[k]);
         char msg[96];
-        snprintf(msg, sizeof(msg), "p%g: reference %lld, histogram %lld", percents[k], (long long)ref,
-                 (long long)got);
+        snprintf(msg, sizeof(msg), "p%g: reference %lld, histogram %lld", percents[k], (long long)ref, (long long)got);
         /* Never below the truth, and within one bucket (1/16) above it. */
         TEST_ASSERT_TRUE_MESSAGE(got >= ref, msg);
         TEST_ASSERT_TRUE_MESSAGE(got <= ref + ref / VL_LATENCY_SUB + 1, msg);

@@ -218,7 +218,7 @@ void test_vl_log_reader_next_corrupt_payloads_are_counted_and_skipped(void)
     vislam_imu_t imu = make_imu(5000);
     int n = vislam_imu_t_encode(g_buf, 0, (int)sizeof(g_buf), &imu);
     write_raw(VL_CHANNEL_IMU, g_buf, n - 5); /* cut payload */
-    g_buf[0] ^= 0xff;                         /* wrong fingerprint */
+    g_buf[0] ^= 0xff;                        /* wrong fingerprint */
     write_raw(VL_CHANNEL_IMU, g_buf, n);
     g_buf[0] ^= 0xff;
     unsigned char longer[512];
@@ -227,7 +227,7 @@ void test_vl_log_reader_next_corrupt_payloads_are_counted_and_skipped(void)
     write_raw(VL_CHANNEL_IMU, longer, n + 8); /* trailing bytes */
     make_frame(6000, 257);                    /* count too large */
     write_frame(VL_CHANNEL_FEATURES, &g_frame_msg);
-    make_frame(6000, -1);                     /* negative count */
+    make_frame(6000, -1); /* negative count */
     write_frame(VL_CHANNEL_FEATURES, &g_frame_msg);
     write_imu(VL_CHANNEL_FEATURES, &imu);     /* wrong type on the channel */
     write_raw(VL_CHANNEL_CALIBRATION, "", 0); /* empty payload */
@@ -717,11 +717,12 @@ void test_vl_trajectory_open_append_keeps_earlier_lines(void)
     const size_t n = fread(text, 1, sizeof(text) - 1, f);
     fclose(f);
     text[n] = '\0';
-    TEST_ASSERT_EQUAL_STRING("1.000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 1.000000000\n"
-                             "2.000000 0.1\n"
-                             "# run 2\n"
-                             "3.000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 1.000000000\n",
-                             text);
+    TEST_ASSERT_EQUAL_STRING(
+        "1.000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 1.000000000\n"
+        "2.000000 0.1\n"
+        "# run 2\n"
+        "3.000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 0.000000000 1.000000000\n",
+        text);
 }
 
 int main(void)

@@ -367,11 +367,11 @@ void test_pixels_outside_the_image_and_absurd_disparity_are_refused(void)
     static vl_stereo_frame_t f;
     make_frame(&cfg, &f, T0);
     const double w = 2.0 * cfg.calibration.cx, h = 2.0 * cfg.calibration.cy, m = cfg.image_margin;
-    f.obs[0].u_left = w + m + 1.0;       /* right of the image */
-    f.obs[1].v_right = -m - 1.0;          /* above it */
-    f.obs[2].v_left = h + m + 1.0;        /* below it */
+    f.obs[0].u_left = w + m + 1.0;                                /* right of the image */
+    f.obs[1].v_right = -m - 1.0;                                  /* above it */
+    f.obs[2].v_left = h + m + 1.0;                                /* below it */
     f.obs[3].u_left = f.obs[3].u_right + cfg.max_disparity + 1.0; /* nearer than any camera sees */
-    f.obs[4].u_left = w + m - 1.0;        /* inside the margin: plausible */
+    f.obs[4].u_left = w + m - 1.0;                                /* inside the margin: plausible */
     f.obs[4].u_right = f.obs[4].u_left - 30.0;
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
     const vl_counters_t *c = vl_get_counters(&est);

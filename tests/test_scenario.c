@@ -20,7 +20,7 @@ static vl_sim_t sim;
 static vl_stereo_frame_t frame;
 
 typedef struct {
-    double rms_position_error; /**< m, over all steps, no alignment (both start at identity) */
+    double rms_position_error;   /**< m, over all steps, no alignment (both start at identity) */
     double final_position_error; /**< m */
     double nees_sum[NEES_STEPS]; /**< pose NEES at each step */
     uint32_t window_max;
@@ -184,9 +184,11 @@ static void check_nees(const char *name, double density, double velocity_scale)
     }
     mean /= (double)(NEES_STEPS - NEES_SKIP);
     char msg[200];
-    snprintf(msg, sizeof(msg), "%s (%.1f observations per frame): average NEES %.3f (6 expected, bounds [%.2f, %.2f]), "
-             "%u of %d steps inside", name, (double)observations / (NEES_RUNS * NEES_STEPS), mean, lo, hi,
-             (unsigned)inside, NEES_STEPS - NEES_SKIP);
+    snprintf(msg, sizeof(msg),
+             "%s (%.1f observations per frame): average NEES %.3f (6 expected, bounds [%.2f, %.2f]), "
+             "%u of %d steps inside",
+             name, (double)observations / (NEES_RUNS * NEES_STEPS), mean, lo, hi, (unsigned)inside,
+             NEES_STEPS - NEES_SKIP);
     printf("%s\n", msg);
     TEST_ASSERT_TRUE_MESSAGE(mean >= lo && mean <= hi, msg);
     /* and it holds over the run, not just on average */
@@ -222,8 +224,7 @@ void test_slam_beats_dead_reckoning(void)
     run(&sc, &cfg, &slam);
     cfg.mode = VL_MODE_IMU_ONLY;
     run(&sc, &cfg, &dr);
-    printf("rms position error: slam %.3f m, dead reckoning %.3f m\n", slam.rms_position_error,
-           dr.rms_position_error);
+    printf("rms position error: slam %.3f m, dead reckoning %.3f m\n", slam.rms_position_error, dr.rms_position_error);
     TEST_ASSERT_TRUE(slam.rms_position_error < 0.25 * dr.rms_position_error);
     TEST_ASSERT_TRUE(slam.final_position_error < dr.final_position_error);
 }

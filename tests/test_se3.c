@@ -16,8 +16,12 @@
 
 static const double k_pi = 3.14159265358979323846;
 
-void setUp(void) {}
-void tearDown(void) {}
+void setUp(void)
+{
+}
+void tearDown(void)
+{
+}
 
 /* ---- helpers ------------------------------------------------------------ */
 
@@ -91,8 +95,8 @@ static void pose_to_4x4(const double R[9], const double p[3], double T[16])
 }
 
 /* (R, p) = (R1, p1) (R2, p2) */
-static void compose(const double R1[9], const double p1[3], const double R2[9], const double p2[3],
-                    double R[9], double p[3])
+static void compose(const double R1[9], const double p1[3], const double R2[9], const double p2[3], double R[9],
+                    double p[3])
 {
     int i;
     vl_matmul(R1, R2, R, 3, 3, 3);
@@ -126,8 +130,8 @@ static void scaled_dir(const double d[3], double t, double phi[3])
 }
 
 /* Angles probing the series branch, both sides of its threshold (1 rad), and the region near pi. */
-static const double k_angles[] = {0.0, 1e-12, 1e-7, 1e-4, 0.03, 0.1, 0.5, 0.9999999, 1.0, 1.0000001,
-                                  1.3, 2.0, 3.0, 3.14};
+static const double k_angles[] = {0.0,       1e-12, 1e-7,      1e-4, 0.03, 0.1, 0.5,
+                                  0.9999999, 1.0,   1.0000001, 1.3,  2.0,  3.0, 3.14};
 #define N_ANGLES ((int)(sizeof(k_angles) / sizeof(k_angles[0])))
 
 static const double k_dirs[][3] = {{0.3, -0.5, 0.8}, {1.0, 0.0, 0.0}, {-0.2, 0.9, 0.1}, {0.0, 0.0, -1.0}};
@@ -328,9 +332,9 @@ void test_so3_normalize_keeps_rotation_unchanged(void)
 
 void test_so3_normalize_degenerate_input_gives_rotation(void)
 {
-    double bad[3][9] = {{-1, 0, 0, 0, 1, 0, 0, 0, 1},   /* reflection */
-                        {0, 0, 0, 0, 0, 0, 0, 0, 0},    /* singular */
-                        {1, 0, 0, 0, 1, 0, 0, 0, 1}};   /* NaN, filled below */
+    double bad[3][9] = {{-1, 0, 0, 0, 1, 0, 0, 0, 1}, /* reflection */
+                        {0, 0, 0, 0, 0, 0, 0, 0, 0},  /* singular */
+                        {1, 0, 0, 0, 1, 0, 0, 0, 1}}; /* NaN, filled below */
     int k;
     bad[2][4] = NAN;
     for (k = 0; k < 3; ++k) {
@@ -340,8 +344,8 @@ void test_so3_normalize_degenerate_input_gives_rotation(void)
         vl_matmul_bt(R, R, RRt, 3, 3, 3);
         identity(I, 3);
         VL_TEST_ASSERT_CLOSE(RRt, I, 9, 1e-14);
-        det = R[0] * (R[4] * R[8] - R[5] * R[7]) - R[1] * (R[3] * R[8] - R[5] * R[6])
-              + R[2] * (R[3] * R[7] - R[4] * R[6]);
+        det = R[0] * (R[4] * R[8] - R[5] * R[7]) - R[1] * (R[3] * R[8] - R[5] * R[6]) +
+              R[2] * (R[3] * R[7] - R[4] * R[6]);
         TEST_ASSERT_DOUBLE_WITHIN(1e-14, 1.0, det);
     }
 }

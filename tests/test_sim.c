@@ -14,8 +14,12 @@ static vl_stereo_frame_t g_fb;
 #define MAX_IDS 20000
 static unsigned char g_id_state[MAX_IDS]; /* 0 unseen, 1 seen in the previous frame, 2 ended */
 
-void setUp(void) {}
-void tearDown(void) {}
+void setUp(void)
+{
+}
+void tearDown(void)
+{
+}
 
 /** Projects world point x from the true pose into [u_left, v, u_right]. */
 static void reproject(const vl_calibration_t *cal, const double R[9], const double p[3], const double x[3],

@@ -16,8 +16,8 @@
 static vl_calibration_t cal;
 
 /* Points spanning near/far, left/right/up/down and off-axis. */
-static const double k_points[][3] = {{0.0, 0.0, 5.0},  {1.2, -0.8, 3.0}, {-4.0, 1.5, 12.0},
-                                     {10.0, 2.0, 60.0}, {0.3, 0.2, 0.8}, {-25.0, -3.0, 80.0}};
+static const double k_points[][3] = {{0.0, 0.0, 5.0},   {1.2, -0.8, 3.0}, {-4.0, 1.5, 12.0},
+                                     {10.0, 2.0, 60.0}, {0.3, 0.2, 0.8},  {-25.0, -3.0, 80.0}};
 #define N_POINTS ((int)(sizeof(k_points) / sizeof(k_points[0])))
 
 void setUp(void)
@@ -25,7 +25,9 @@ void setUp(void)
     vl_test_kitti_calibration(&cal, 0);
 }
 
-void tearDown(void) {}
+void tearDown(void)
+{
+}
 
 static double max_abs(const double *a, int n)
 {
@@ -123,8 +125,8 @@ void test_stereo_compress_preserves_information(void)
     /* d(M pi(q))/dc with q = [c; 1]: dpi/dc = [[1/z, 0, -x/z^2], [0, 1/z, -y/z^2], [0, 0, 0], [0, 0, -1/z^2]] */
     {
         const double z = c[2];
-        const double dpi[12] = {1.0 / z, 0.0, -c[0] / (z * z), 0.0, 1.0 / z, -c[1] / (z * z),
-                                0.0,     0.0, 0.0,             0.0, 0.0,     -1.0 / (z * z)};
+        const double dpi[12] = {1.0 / z, 0.0, -c[0] / (z * z), 0.0, 1.0 / z, -c[1] / (z * z), 0.0, 0.0, 0.0,
+                                0.0,     0.0, -1.0 / (z * z)};
         vl_matmul(M, dpi, J4, 4, 4, 3);
     }
     VL_TEST_ASSERT_CLOSE(J4, J3, 9, 1e-9); /* rows 1..3 are the compressed Jacobian */
@@ -146,7 +148,8 @@ void test_stereo_triangulate_round_trip(void)
         double y[3], c[3], y2[3];
         vl_stereo_project(&cal, k_points[k], y, NULL);
         vl_stereo_triangulate(&cal, y, c, NULL);
-        TEST_ASSERT_DOUBLE_WITHIN(1e-12 * k_points[k][2] * k_points[k][2], 0.0, vl_test_max_abs_diff(c, k_points[k], 3));
+        TEST_ASSERT_DOUBLE_WITHIN(1e-12 * k_points[k][2] * k_points[k][2], 0.0,
+                                  vl_test_max_abs_diff(c, k_points[k], 3));
         vl_stereo_project(&cal, c, y2, NULL);
         VL_TEST_ASSERT_CLOSE(y2, y, 3, 1e-9);
     }

@@ -15,8 +15,7 @@ void vl_config_default(vl_config_t *cfg)
     }
     memset(cfg, 0, sizeof(*cfg));
     /* Every plain value from its row of the schema (the reasons for the values are there). */
-#define VL_CONFIG_SET_DEFAULT_(section, key, field, type, def, min, max, min_open, units, meaning) \
-    cfg->field = (def);
+#define VL_CONFIG_SET_DEFAULT_(section, key, field, type, def, min, max, min_open, units, meaning) cfg->field = (def);
     VL_CONFIG_KEYS(VL_CONFIG_SET_DEFAULT_)
 #undef VL_CONFIG_SET_DEFAULT_
 
@@ -70,11 +69,10 @@ vl_status_t vl_config_check(const vl_config_t *cfg)
     /* Every plain value against its schema row. A RANSAC threshold is unused while RANSAC is
        off (ransac_hypotheses = 0), so it is only checked with hypotheses to use it: the one
        range that depends on another value. */
-#define VL_CONFIG_CHECK_KEY_(section, key, field, type, def, min, max, min_open, units, meaning)               \
-    if (!in_range(VL_CONFIG_##type, (double)cfg->field, (double)(min), (double)(max), (min_open)) &&           \
-        !(offsetof(vl_config_t, field) == offsetof(vl_config_t, ransac_threshold) &&                           \
-          cfg->ransac_hypotheses == 0)) {                                                                       \
-        return VL_ERR_CONFIG;                                                                                  \
+#define VL_CONFIG_CHECK_KEY_(section, key, field, type, def, min, max, min_open, units, meaning)                     \
+    if (!in_range(VL_CONFIG_##type, (double)cfg->field, (double)(min), (double)(max), (min_open)) &&                 \
+        !(offsetof(vl_config_t, field) == offsetof(vl_config_t, ransac_threshold) && cfg->ransac_hypotheses == 0)) { \
+        return VL_ERR_CONFIG;                                                                                        \
     }
     VL_CONFIG_KEYS(VL_CONFIG_CHECK_KEY_)
 #undef VL_CONFIG_CHECK_KEY_
@@ -99,8 +97,8 @@ vl_status_t vl_config_check(const vl_config_t *cfg)
             }
         }
     }
-    double det = T[0] * (T[5] * T[10] - T[6] * T[9]) - T[1] * (T[4] * T[10] - T[6] * T[8]) +
-                 T[2] * (T[4] * T[9] - T[5] * T[8]);
+    double det =
+        T[0] * (T[5] * T[10] - T[6] * T[9]) - T[1] * (T[4] * T[10] - T[6] * T[8]) + T[2] * (T[4] * T[9] - T[5] * T[8]);
     if (det < 0.0 || T[12] != 0.0 || T[13] != 0.0 || T[14] != 0.0 || T[15] != 1.0) {
         return VL_ERR_CONFIG;
     }

@@ -27,10 +27,10 @@ VL_STATIC_CHECK(sizeof(k_counter_names) / sizeof(k_counter_names[0]) == VL_NUM_C
 size_t vl_counters_list(const vl_counters_t *c, vl_counter_entry_t out[VL_NUM_COUNTERS])
 {
     size_t n = 0;
-#define VL_COUNTER_ENTRY_(type, field, text)                                                                 \
-    out[n].name = k_counter_names[n];                                                                        \
-    out[n].value = (uint64_t)c->field;                                                                       \
-    out[n].meaning = text;                                                                                   \
+#define VL_COUNTER_ENTRY_(type, field, text) \
+    out[n].name = k_counter_names[n];        \
+    out[n].value = (uint64_t)c->field;       \
+    out[n].meaning = text;                   \
     ++n;
     VL_COUNTERS(VL_COUNTER_ENTRY_)
 #undef VL_COUNTER_ENTRY_

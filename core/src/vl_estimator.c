@@ -194,8 +194,7 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
             if (!e->imu_silent) {
                 e->counters.imu_silences++;
             }
-            vl_log_msg(e, VL_LOG_WARN, imu->utime,
-                       "IMU back after a silence; the motion during it is not propagated");
+            vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU back after a silence; the motion during it is not propagated");
             vl_predict_to(e, e->last_imu_utime + vl_limit_us(e->cfg.max_imu_silence));
             e->state_utime = imu->utime;
         } else {

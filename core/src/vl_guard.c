@@ -92,8 +92,7 @@ int vl_guard_imu_plausible(const vl_estimator_t *e, const vl_imu_sample_t *imu)
 
 int vl_guard_observation_valid(const vl_stereo_obs_t *o)
 {
-    return o->id >= 0 && isfinite(o->u_left) && isfinite(o->v_left) && isfinite(o->u_right) &&
-           isfinite(o->v_right);
+    return o->id >= 0 && isfinite(o->u_left) && isfinite(o->v_left) && isfinite(o->u_right) && isfinite(o->v_right);
 }
 
 /* The image is image_width x image_height, or 2 cx x 2 cy when those are 0. */

@@ -11,7 +11,8 @@
 #include <Eigen/Core>
 #include <Eigen/Cholesky>
 
-namespace {
+namespace
+{
 
 using MatMap = Eigen::Map<Eigen::MatrixXd, 0, Eigen::OuterStride<>>;
 using ConstMatMap = Eigen::Map<const Eigen::MatrixXd, 0, Eigen::OuterStride<>>;
@@ -36,8 +37,7 @@ using SmallBlock = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kPan
 
 /* C -= A B^T in slabs of kProductRows rows and kProductDepth columns of depth
  * (B has at most kPanel rows). */
-template <typename DstT, typename LhsT, typename RhsT>
-void subtract_product_bt(DstT &&C, const LhsT &A, const RhsT &B)
+template <typename DstT, typename LhsT, typename RhsT> void subtract_product_bt(DstT &&C, const LhsT &A, const RhsT &B)
 {
     const Eigen::Index rows = C.rows();
     const Eigen::Index depth = A.cols();
@@ -105,11 +105,21 @@ void downdate_lower(MatMap &P, const DenseMap &W)
 /* In the checked build every entry point forbids heap use for its whole body. */
 struct no_heap_scope {
 #ifdef EIGEN_RUNTIME_NO_MALLOC
-    no_heap_scope() { Eigen::internal::set_is_malloc_allowed(false); }
-    ~no_heap_scope() { Eigen::internal::set_is_malloc_allowed(true); }
+    no_heap_scope()
+    {
+        Eigen::internal::set_is_malloc_allowed(false);
+    }
+    ~no_heap_scope()
+    {
+        Eigen::internal::set_is_malloc_allowed(true);
+    }
 #else
-    no_heap_scope() {}
-    ~no_heap_scope() {}
+    no_heap_scope()
+    {
+    }
+    ~no_heap_scope()
+    {
+    }
 #endif
 };
 

@@ -21,9 +21,9 @@ typedef vl_obs_row_t vl_la_obs_t;
 
 /** Buffers the joint update may use; sizes in doubles. */
 typedef struct {
-    double *PHt;   /**< >= n * m */
-    double *S;     /**< >= m * m */
-    double *dx;    /**< >= n: the state correction on success */
+    double *PHt; /**< >= n * m */
+    double *S;   /**< >= m * m */
+    double *dx;  /**< >= n: the state correction on success */
 } vl_la_workspace_t;
 
 /**

@@ -41,9 +41,15 @@ static double vl_trig_series(double t2, int m)
 
 void vl_skew(const double v[3], double S[9])
 {
-    S[0] = 0.0;   S[1] = -v[2]; S[2] = v[1];
-    S[3] = v[2];  S[4] = 0.0;   S[5] = -v[0];
-    S[6] = -v[1]; S[7] = v[0];  S[8] = 0.0;
+    S[0] = 0.0;
+    S[1] = -v[2];
+    S[2] = v[1];
+    S[3] = v[2];
+    S[4] = 0.0;
+    S[5] = -v[0];
+    S[6] = -v[1];
+    S[7] = v[0];
+    S[8] = 0.0;
 }
 
 void vl_matmul(const double *A, const double *B, double *C, int r, int k, int c)
@@ -150,10 +156,16 @@ static void vl_so3_left_jacobian_inverse(const double phi[3], double Ji[9])
     if (t < VL_SERIES_ANGLE) {
         /* k = sum_n |B_2n| t^(2n-2) / (2n)! (Bernoulli numbers); the terms shrink
          * by (t / 2 pi)^2, so ten of them leave < 1e-16 at t = 1. */
-        static const double coef[10] = {
-            1.0 / 12.0, 1.0 / 720.0, 1.0 / 30240.0, 1.0 / 1209600.0, 1.0 / 47900160.0,
-            691.0 / 1307674368000.0, 1.0 / 74724249600.0, 3.3896802963225827e-13,
-            8.586062056277845e-15, 2.174868698558062e-16};
+        static const double coef[10] = {1.0 / 12.0,
+                                        1.0 / 720.0,
+                                        1.0 / 30240.0,
+                                        1.0 / 1209600.0,
+                                        1.0 / 47900160.0,
+                                        691.0 / 1307674368000.0,
+                                        1.0 / 74724249600.0,
+                                        3.3896802963225827e-13,
+                                        8.586062056277845e-15,
+                                        2.174868698558062e-16};
         const double t2 = t * t;
         int n;
         k = coef[9];
@@ -330,8 +342,8 @@ static void vl_se3_q(const double rho[3], const double phi[3], double Q[9])
     vl_matmul(FPF, F, FPFF, 3, 3, 3);
     vl_matmul(F, FPF, FFPF, 3, 3, 3);
     for (i = 0; i < 9; ++i) {
-        Q[i] = 0.5 * P[i] + a * (FP[i] + PF[i] + FPF[i]) + b * (FFP[i] + PFF[i] - 3.0 * FPF[i])
-               + c * (FPFF[i] + FFPF[i]);
+        Q[i] =
+            0.5 * P[i] + a * (FP[i] + PF[i] + FPF[i]) + b * (FFP[i] + PFF[i] - 3.0 * FPF[i]) + c * (FPFF[i] + FFPF[i]);
     }
 }
 
@@ -463,8 +475,8 @@ void vl_so3_normalize(double R[9])
              * quaternion route always lands on SO(3). */
             double q[4];
             vl_rotation_to_quaternion(R, q);
-            if (!(isfinite(q[0]) && isfinite(q[1]) && isfinite(q[2]) && isfinite(q[3]))
-                || !(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] > 0.0)) {
+            if (!(isfinite(q[0]) && isfinite(q[1]) && isfinite(q[2]) && isfinite(q[3])) ||
+                !(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] > 0.0)) {
                 q[0] = 1.0;
                 q[1] = q[2] = q[3] = 0.0;
             }

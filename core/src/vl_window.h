@@ -14,8 +14,8 @@
 
 /** Candidate for admission: a frame observation and its rank. */
 typedef struct {
-    uint32_t obs;  /**< index in the frame */
-    double score;  /**< higher is admitted first */
+    uint32_t obs; /**< index in the frame */
+    double score; /**< higher is admitted first */
 } vl_candidate_t;
 
 /** Admission candidates of one frame (on the stack of vl_update: a few KiB). */

@@ -64,9 +64,15 @@ static void vl_fuzz_config(uint8_t selector, vl_config_t *cfg)
         vl_config_default(cfg);
     }
     switch (selector & VL_FUZZ_CFG_MODE_MASK) {
-    case 1: cfg->mode = VL_MODE_MAPPING; break;
-    case 2: cfg->mode = VL_MODE_IMU_ONLY; break;
-    default: cfg->mode = VL_MODE_SLAM; break;
+    case 1:
+        cfg->mode = VL_MODE_MAPPING;
+        break;
+    case 2:
+        cfg->mode = VL_MODE_IMU_ONLY;
+        break;
+    default:
+        cfg->mode = VL_MODE_SLAM;
+        break;
     }
     if (selector & VL_FUZZ_CFG_ADAPTIVE) {
         cfg->adaptive_noise = 1;
@@ -87,8 +93,8 @@ static void vl_fuzz_require_finite(const double *v, int n, const char *what, con
 {
     for (int i = 0; i < n; ++i) {
         if (!isfinite(v[i])) {
-            fprintf(stderr, "fuzz_messages: vl_get_pose returned VL_OK with a non-finite %s[%d] = %g after %s\n",
-                    what, i, v[i], step);
+            fprintf(stderr, "fuzz_messages: vl_get_pose returned VL_OK with a non-finite %s[%d] = %g after %s\n", what,
+                    i, v[i], step);
             __builtin_trap();
         }
     }
@@ -192,9 +198,15 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         const uint8_t *payload = data + pos;
         pos += len;
         switch (selector % VL_FUZZ_NUM_CHANNELS) {
-        case VL_FUZZ_CH_IMU: vl_fuzz_on_imu(&d, payload, len); break;
-        case VL_FUZZ_CH_FEATURES: vl_fuzz_on_features(&d, payload, len); break;
-        default: vl_fuzz_on_calibration(&d, payload, len); break;
+        case VL_FUZZ_CH_IMU:
+            vl_fuzz_on_imu(&d, payload, len);
+            break;
+        case VL_FUZZ_CH_FEATURES:
+            vl_fuzz_on_features(&d, payload, len);
+            break;
+        default:
+            vl_fuzz_on_calibration(&d, payload, len);
+            break;
         }
     }
     if (d.initialized) {
@@ -210,8 +222,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                d.initialized ? (unsigned long long)c->imu_rejected : 0ULL,
                d.initialized ? (unsigned long long)c->frames_accepted : 0ULL,
                d.initialized ? (unsigned long long)c->frames_rejected : 0ULL,
-               d.initialized ? (unsigned long long)c->observations_used : 0ULL,
-               (unsigned long long)mapped);
+               d.initialized ? (unsigned long long)c->observations_used : 0ULL, (unsigned long long)mapped);
     }
     return 0;
 }

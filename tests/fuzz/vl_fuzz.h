@@ -44,12 +44,12 @@ enum {
  * default configuration, as vislamd runs without a config file.
  */
 enum {
-    VL_FUZZ_CFG_MODE_MASK = 0x03,       /**< 0 slam, 1 mapping, 2 imu_only, 3 slam */
-    VL_FUZZ_CFG_PRESET_SEED = 0x04,     /**< start from vl_config_preset_seed */
-    VL_FUZZ_CFG_ADAPTIVE = 0x08,        /**< adaptive_noise on */
-    VL_FUZZ_CFG_WINDOW_MASK = 0x30,     /**< max_landmarks: 0 default, then 16, 4, 1 */
-    VL_FUZZ_CFG_NO_OFFSETS = 0x40,      /**< estimate_input_offsets off */
-    VL_FUZZ_CFG_NO_OUTLIERS = 0x80      /**< gate_chi2 = 0: every outlier test off */
+    VL_FUZZ_CFG_MODE_MASK = 0x03,   /**< 0 slam, 1 mapping, 2 imu_only, 3 slam */
+    VL_FUZZ_CFG_PRESET_SEED = 0x04, /**< start from vl_config_preset_seed */
+    VL_FUZZ_CFG_ADAPTIVE = 0x08,    /**< adaptive_noise on */
+    VL_FUZZ_CFG_WINDOW_MASK = 0x30, /**< max_landmarks: 0 default, then 16, 4, 1 */
+    VL_FUZZ_CFG_NO_OFFSETS = 0x40,  /**< estimate_input_offsets off */
+    VL_FUZZ_CFG_NO_OUTLIERS = 0x80  /**< gate_chi2 = 0: every outlier test off */
 };
 
 #ifdef __cplusplus

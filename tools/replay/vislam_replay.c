@@ -50,9 +50,9 @@
 #define EXIT_USAGE 2
 #define EXIT_LOG_DAMAGED 3
 
-#define CALIB_MAX 4096          /* bytes of the largest calibration payload kept for re-publication */
-#define RECENT_INPUTS 1024      /* published inputs a pose may answer */
-#define REPORTS_MAX 5           /* damaged spots and foreign poses described on stderr; then only counted */
+#define CALIB_MAX 4096     /* bytes of the largest calibration payload kept for re-publication */
+#define RECENT_INPUTS 1024 /* published inputs a pose may answer */
+#define REPORTS_MAX 5      /* damaged spots and foreign poses described on stderr; then only counted */
 
 #define MAX_FILTER 16
 #define MAX_CHANNELS 32
@@ -218,11 +218,10 @@ static int parse_args(int argc, char **argv, options_t *o)
             o->log_path = a;
             continue;
         }
-        static const char *const with_value[] = {"--speed",        "--timeout-ms",   "--linger-ms",
-                                                 "--channels",     "--lcm-url",      "--pose-channel",
-                                                 "--features-channel", "--wait-for", "--summary-json",
-                                                 "--imu-channel",  "--calib-channel", "--status-channel",
-                                                 "--calib-period-ms", "--max-timeouts", "--wait-timeout-ms"};
+        static const char *const with_value[] = {
+            "--speed",         "--timeout-ms",       "--linger-ms",       "--channels",     "--lcm-url",
+            "--pose-channel",  "--features-channel", "--wait-for",        "--summary-json", "--imu-channel",
+            "--calib-channel", "--status-channel",   "--calib-period-ms", "--max-timeouts", "--wait-timeout-ms"};
         int known = 0;
         for (size_t k = 0; k < sizeof(with_value) / sizeof(with_value[0]); ++k) {
             known |= strcmp(a, with_value[k]) == 0;
@@ -386,7 +385,8 @@ static void report_foreign(replay_t *r, const char *why)
 {
     r->poses_foreign++;
     if (r->poses_foreign <= REPORTS_MAX) {
-        fprintf(stderr, "vislam-replay: foreign pose on %s (utime %" PRId64 ", source %d, sequence %" PRId64 "): %s%s\n",
+        fprintf(stderr,
+                "vislam-replay: foreign pose on %s (utime %" PRId64 ", source %d, sequence %" PRId64 "): %s%s\n",
                 r->opt.pose_channel, r->pose_msg.utime, (int)r->pose_msg.source, r->pose_msg.sequence, why,
                 r->poses_foreign == REPORTS_MAX ? " (further ones only counted)" : "");
     }
@@ -528,8 +528,9 @@ static void print_summary(const replay_t *r, double wall_s, int interrupted)
     fprintf(stderr, "  poses received on %s: %" PRIu64 " (imu %" PRIu64 ", features %" PRIu64 ")%s\n",
             r->opt.pose_channel, r->poses, r->poses_imu, r->poses_features,
             r->pose_decode_errors != 0 ? " plus undecodable ones" : "");
-    fprintf(stderr, "  answers accepted %" PRIu64 ", foreign poses %" PRIu64 " (non-finite %" PRIu64
-                    "), daemon restarts %" PRIu64 ", calibrations re-published %" PRIu64 "\n",
+    fprintf(stderr,
+            "  answers accepted %" PRIu64 ", foreign poses %" PRIu64 " (non-finite %" PRIu64
+            "), daemon restarts %" PRIu64 ", calibrations re-published %" PRIu64 "\n",
             r->poses_accepted, r->poses_foreign, r->poses_non_finite, r->daemon_restarts, r->calib_resent);
     if (vl_log_guard_damaged(&r->guard) || r->guard.events == 0) {
         fprintf(stderr, "  log damaged: %" PRIu64 " unreadable spot(s), %" PRIu64 " bytes skipped, %s%s\n",
@@ -555,8 +556,8 @@ static int write_json(const replay_t *r, double wall_s, int interrupted)
         fprintf(f, "%s\n    \"%s\": %" PRIu64, i == 0 ? "" : ",", r->channels[i].name, r->channels[i].sent);
     }
     fprintf(f, "\n  },\n  \"publish_errors\": %" PRIu64 ",\n", r->publish_errors);
-    fprintf(f, "  \"poses_received\": %" PRIu64 ",\n  \"poses_imu\": %" PRIu64 ",\n  \"poses_features\": %" PRIu64
-               ",\n",
+    fprintf(f,
+            "  \"poses_received\": %" PRIu64 ",\n  \"poses_imu\": %" PRIu64 ",\n  \"poses_features\": %" PRIu64 ",\n",
             r->poses, r->poses_imu, r->poses_features);
     fprintf(f,
             "  \"poses_accepted\": %" PRIu64 ",\n  \"poses_foreign\": %" PRIu64 ",\n  \"poses_non_finite\": %" PRIu64
@@ -569,8 +570,9 @@ static int write_json(const replay_t *r, double wall_s, int interrupted)
             ",\n  \"log_truncated\": %s,\n  \"log_read_failed\": %s,\n",
             r->guard.events, r->guard.damaged, r->guard.bytes_skipped, r->guard.truncated ? "true" : "false",
             r->guard.failed ? "true" : "false");
-    fprintf(f, "  \"lockstep\": %s,\n  \"frames_expected\": %" PRIu64 ",\n  \"frames_returned\": %" PRIu64
-               ",\n  \"frames_missing\": %" PRIu64 ",\n",
+    fprintf(f,
+            "  \"lockstep\": %s,\n  \"frames_expected\": %" PRIu64 ",\n  \"frames_returned\": %" PRIu64
+            ",\n  \"frames_missing\": %" PRIu64 ",\n",
             r->opt.lockstep ? "true" : "false", r->expected, r->returned, r->missing);
     fprintf(f,
             "  \"latency_us\": {\"count\": %" PRIu64 ", \"p50\": %" PRId64 ", \"p90\": %" PRId64 ", \"p99\": %" PRId64
@@ -640,8 +642,8 @@ int main(int argc, char **argv)
 
     const int show_progress = !o->quiet && isatty(STDERR_FILENO);
     const int64_t wall_start = vl_clock_monotonic_us();
-    int64_t start = 0;           /* monotonic time of the first event */
-    int64_t paused = 0;          /* us the schedule waited on lockstep */
+    int64_t start = 0;  /* monotonic time of the first event */
+    int64_t paused = 0; /* us the schedule waited on lockstep */
     int64_t next_progress = wall_start;
     int have_first = 0;
     int consecutive_timeouts = 0;
@@ -712,7 +714,8 @@ int main(int argc, char **argv)
             if (vl_log_event_decode(&r->decoder, VL_LOG_EVENT_FRAME, ev->data, ev->datalen, &r->input) !=
                 VL_LOG_EVENT_FRAME) {
                 if (o->lockstep) {
-                    fprintf(stderr, "vislam-replay: event %" PRId64 " on %s is not a vislam.stereo_frame_t; not awaited\n",
+                    fprintf(stderr,
+                            "vislam-replay: event %" PRId64 " on %s is not a vislam.stereo_frame_t; not awaited\n",
                             ev->eventnum, ev->channel);
                 }
             } else {
@@ -786,14 +789,15 @@ int main(int argc, char **argv)
     /* Said even with --quiet: a damaged log or someone else's poses must not pass unnoticed. */
     const int damaged = vl_log_guard_damaged(&r->guard) || r->guard.events == 0;
     if (damaged && !interrupted) {
-        fprintf(stderr,
-                "vislam-replay: %s is damaged: %" PRIu64 " unreadable spot(s) (%" PRIu64 " bytes skipped)%s%s%s\n",
-                o->log_path, r->guard.damaged, r->guard.bytes_skipped, r->guard.truncated ? ", cut inside an event" : "",
-                r->guard.failed ? ", a read failed" : "", r->guard.events == 0 ? ", no event at all" : "");
+        fprintf(
+            stderr, "vislam-replay: %s is damaged: %" PRIu64 " unreadable spot(s) (%" PRIu64 " bytes skipped)%s%s%s\n",
+            o->log_path, r->guard.damaged, r->guard.bytes_skipped, r->guard.truncated ? ", cut inside an event" : "",
+            r->guard.failed ? ", a read failed" : "", r->guard.events == 0 ? ", no event at all" : "");
     }
     if (r->poses_foreign != 0) {
-        fprintf(stderr, "vislam-replay: %" PRIu64 " foreign pose(s) on %s (%" PRIu64 " non-finite): not answers to this "
-                        "replay's inputs\n",
+        fprintf(stderr,
+                "vislam-replay: %" PRIu64 " foreign pose(s) on %s (%" PRIu64 " non-finite): not answers to this "
+                "replay's inputs\n",
                 r->poses_foreign, o->pose_channel, r->poses_non_finite);
     }
     if (damaged && !interrupted) {

@@ -446,7 +446,8 @@ int main(int argc, char **argv)
     vl_latency_reset(&t_propagate);
 
     /* Several MB: heap, once, aligned as vl_init requires (VL_ESTIMATOR_ALIGN). */
-    const size_t est_bytes = (sizeof(vl_estimator_t) + VL_ESTIMATOR_ALIGN - 1) / VL_ESTIMATOR_ALIGN * VL_ESTIMATOR_ALIGN;
+    const size_t est_bytes =
+        (sizeof(vl_estimator_t) + VL_ESTIMATOR_ALIGN - 1) / VL_ESTIMATOR_ALIGN * VL_ESTIMATOR_ALIGN;
     void *est_mem = NULL;
     vl_estimator_t *est = NULL;
     if (posix_memalign(&est_mem, VL_ESTIMATOR_ALIGN, est_bytes) == 0) {

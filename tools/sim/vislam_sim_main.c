@@ -26,47 +26,46 @@ static unsigned char g_buf[16384];
 
 static void usage(FILE *f)
 {
-    fprintf(f,
-            "usage: vislam-sim --out LOG.lcmlog --truth TRUTH.tum [options]\n"
-            "Writes a deterministic synthetic visual-inertial scenario as an LCM log\n"
-            "(VISLAM_CALIB, then VISLAM_IMU + VISLAM_FEATURES per step) and its true\n"
-            "IMU trajectory in TUM format (time tx ty tz qx qy qz qw).\n"
-            "options (defaults in brackets):\n"
-            "  --truth-map MAP.ply     also write the true position of every track id\n"
-            "  --steps N               steps at 10 Hz [300]\n"
-            "  --seed S                world seed: path, points, tracks [1]\n"
-            "  --noise-seed S          measurement noise seed [0]\n"
-            "  --pixel-noise PX        pixel std on each coordinate [1.0]\n"
-            "  --linear-noise MPS      linear velocity std [0.5]\n"
-            "  --angular-noise RPS     angular velocity std [0.05]\n"
-            "  --linear-offset X,Y,Z   constant linear velocity offset, m/s [0,0,0]\n"
-            "  --angular-offset X,Y,Z  constant angular velocity offset, rad/s [0.005,0.005,0.005]\n"
-            "  --speed MPS             mean forward speed [8]\n"
-            "  --points-per-meter N    world point density along the path [2.5]\n"
-            "  --max-observations N    observations per frame, 1..256 [256]\n"
-            "  --start-utime US        time of step 0, microseconds [1317384000000000]\n"
-            "realistic conditions (all off by default; see tools/sim/vl_sim.h):\n"
-            "  --realistic             every condition below at the rate measured on the seed\n"
-            "                          drives, with --max-observations 95 --points-per-meter 4\n"
-            "                          --pixel-noise 0.3; explicit options override it\n"
-            "  --stale-probability P   per frame: repeat the last frame's tracks exactly, which\n"
-            "                          then lose one step of motion [0]\n"
-            "  --detect-below F        start tracks only after a frame with fewer than\n"
-            "                          F x max-observations observations; such frames are stale [0]\n"
-            "  --detect-new F          at most F x max-observations new tracks per frame [0: no limit]\n"
-            "  --reassoc-probability P per frame: hand continued ids to other points [0]\n"
-            "  --reassoc-fraction F    share of the continued tracks handed over in such a frame [0]\n"
-            "  --reassoc-radius PX     farthest jump of a handed-over id [0]\n"
-            "  --moving-fraction F     share of points moving at a constant world velocity [0]\n"
-            "  --moving-speed MPS      speed of the moving points [0]\n"
-            "  --mismatch-probability P  per observation: pixels of a random location [0]\n"
-            "  --far-fraction F        share of points placed far ahead [0]\n"
-            "  --far-disparity MIN,MAX disparity range of far points, px [0,0]\n"
-            "  --calib-rotation-error X,Y,Z  deg, camera-frame rotation of the cam_T_imu the\n"
-            "                          observations use (the log carries the nominal one) [0,0,0]\n"
-            "  --calib-translation-error X,Y,Z  m, added to that cam_T_imu's translation [0,0,0]\n"
-            "  --baseline-error REL    relative error of the baseline the observations use [0]\n"
-            "  --quiet                 no summary on stderr\n");
+    fprintf(f, "usage: vislam-sim --out LOG.lcmlog --truth TRUTH.tum [options]\n"
+               "Writes a deterministic synthetic visual-inertial scenario as an LCM log\n"
+               "(VISLAM_CALIB, then VISLAM_IMU + VISLAM_FEATURES per step) and its true\n"
+               "IMU trajectory in TUM format (time tx ty tz qx qy qz qw).\n"
+               "options (defaults in brackets):\n"
+               "  --truth-map MAP.ply     also write the true position of every track id\n"
+               "  --steps N               steps at 10 Hz [300]\n"
+               "  --seed S                world seed: path, points, tracks [1]\n"
+               "  --noise-seed S          measurement noise seed [0]\n"
+               "  --pixel-noise PX        pixel std on each coordinate [1.0]\n"
+               "  --linear-noise MPS      linear velocity std [0.5]\n"
+               "  --angular-noise RPS     angular velocity std [0.05]\n"
+               "  --linear-offset X,Y,Z   constant linear velocity offset, m/s [0,0,0]\n"
+               "  --angular-offset X,Y,Z  constant angular velocity offset, rad/s [0.005,0.005,0.005]\n"
+               "  --speed MPS             mean forward speed [8]\n"
+               "  --points-per-meter N    world point density along the path [2.5]\n"
+               "  --max-observations N    observations per frame, 1..256 [256]\n"
+               "  --start-utime US        time of step 0, microseconds [1317384000000000]\n"
+               "realistic conditions (all off by default; see tools/sim/vl_sim.h):\n"
+               "  --realistic             every condition below at the rate measured on the seed\n"
+               "                          drives, with --max-observations 95 --points-per-meter 4\n"
+               "                          --pixel-noise 0.3; explicit options override it\n"
+               "  --stale-probability P   per frame: repeat the last frame's tracks exactly, which\n"
+               "                          then lose one step of motion [0]\n"
+               "  --detect-below F        start tracks only after a frame with fewer than\n"
+               "                          F x max-observations observations; such frames are stale [0]\n"
+               "  --detect-new F          at most F x max-observations new tracks per frame [0: no limit]\n"
+               "  --reassoc-probability P per frame: hand continued ids to other points [0]\n"
+               "  --reassoc-fraction F    share of the continued tracks handed over in such a frame [0]\n"
+               "  --reassoc-radius PX     farthest jump of a handed-over id [0]\n"
+               "  --moving-fraction F     share of points moving at a constant world velocity [0]\n"
+               "  --moving-speed MPS      speed of the moving points [0]\n"
+               "  --mismatch-probability P  per observation: pixels of a random location [0]\n"
+               "  --far-fraction F        share of points placed far ahead [0]\n"
+               "  --far-disparity MIN,MAX disparity range of far points, px [0,0]\n"
+               "  --calib-rotation-error X,Y,Z  deg, camera-frame rotation of the cam_T_imu the\n"
+               "                          observations use (the log carries the nominal one) [0,0,0]\n"
+               "  --calib-translation-error X,Y,Z  m, added to that cam_T_imu's translation [0,0,0]\n"
+               "  --baseline-error REL    relative error of the baseline the observations use [0]\n"
+               "  --quiet                 no summary on stderr\n");
 }
 
 static int parse_double(const char *s, double *out)
@@ -138,8 +137,7 @@ static int parse_vec3(const char *s, double v[3])
         return -1;
     }
     *b++ = '\0';
-    return (parse_double(tmp, &v[0]) == 0 && parse_double(a, &v[1]) == 0 &&
-            parse_double(b, &v[2]) == 0) ? 0 : -1;
+    return (parse_double(tmp, &v[0]) == 0 && parse_double(a, &v[1]) == 0 && parse_double(b, &v[2]) == 0) ? 0 : -1;
 }
 
 static int write_event(lcm_eventlog_t *log, const char *channel, int64_t utime, int len)
@@ -349,9 +347,10 @@ int main(int argc, char **argv)
             fprintf(stderr, "vislam-sim: cannot create %s: %s\n", map_path, strerror(errno));
             return 1;
         }
-        fprintf(m, "ply\nformat ascii 1.0\ncomment vislam-sim true landmark per track id\n"
-                   "element vertex %ld\nproperty double x\nproperty double y\nproperty double z\n"
-                   "property int id\nend_header\n",
+        fprintf(m,
+                "ply\nformat ascii 1.0\ncomment vislam-sim true landmark per track id\n"
+                "element vertex %ld\nproperty double x\nproperty double y\nproperty double z\n"
+                "property int id\nend_header\n",
                 (long)(n - first));
         for (id = first; id < n; ++id) {
             double x[3];
@@ -367,8 +366,7 @@ int main(int argc, char **argv)
 
     if (rc == 0 && !quiet) {
         vl_sim_counts_t counts;
-        fprintf(stderr,
-                "vislam-sim: %llu steps, %.1f observations/frame, %ld track ids, %.1f m driven\n",
+        fprintf(stderr, "vislam-sim: %llu steps, %.1f observations/frame, %ld track ids, %.1f m driven\n",
                 (unsigned long long)steps, steps ? (double)observations / (double)steps : 0.0,
                 (long)vl_sim_tracks_issued(&g_sim), vl_sim_distance(&g_sim));
         vl_sim_counts(&g_sim, &counts);

@@ -115,9 +115,15 @@ void vl_sim_integrate(double R[9], double p[3], const double u[6], double tau)
         C = (th - sin(th)) / (th2 * th);
     }
 
-    K[0] = 0.0;     K[1] = -phi[2]; K[2] = phi[1];
-    K[3] = phi[2];  K[4] = 0.0;     K[5] = -phi[0];
-    K[6] = -phi[1]; K[7] = phi[0];  K[8] = 0.0;
+    K[0] = 0.0;
+    K[1] = -phi[2];
+    K[2] = phi[1];
+    K[3] = phi[2];
+    K[4] = 0.0;
+    K[5] = -phi[0];
+    K[6] = -phi[1];
+    K[7] = phi[0];
+    K[8] = 0.0;
     mat3_mul(K, K, K2);
     for (i = 0; i < 9; ++i) {
         const double eye = (i % 4 == 0) ? 1.0 : 0.0;
@@ -139,11 +145,22 @@ void vl_sim_integrate(double R[9], double p[3], const double u[6], double tau)
 void vl_sim_config_default(vl_sim_config_t *cfg)
 {
     /* The real 0027 sequence's cam_T_imu (IMU x fwd, y left, z up -> camera x right, y down, z fwd). */
-    static const double cam_T_imu[16] = {
-        -1.08863514e-03, -9.99976347e-01, 6.78718180e-03, 1.14389871e+00,
-        -8.51207214e-03, -6.77767115e-03, -9.99940872e-01, -3.12718471e-01,
-        9.99963177e-01, -1.14634293e-03, -8.50449310e-03, 7.26546045e-01,
-        0.0, 0.0, 0.0, 1.0};
+    static const double cam_T_imu[16] = {-1.08863514e-03,
+                                         -9.99976347e-01,
+                                         6.78718180e-03,
+                                         1.14389871e+00,
+                                         -8.51207214e-03,
+                                         -6.77767115e-03,
+                                         -9.99940872e-01,
+                                         -3.12718471e-01,
+                                         9.99963177e-01,
+                                         -1.14634293e-03,
+                                         -8.50449310e-03,
+                                         7.26546045e-01,
+                                         0.0,
+                                         0.0,
+                                         0.0,
+                                         1.0};
     int i;
     if (cfg == NULL) {
         return;
@@ -217,13 +234,13 @@ void vl_sim_config_realistic(vl_sim_config_t *cfg)
     cfg->reassoc_probability = 0.04;   /* 0.044 ids per frame on 0027 jump and then continue */
     cfg->reassoc_fraction = 0.02;      /* 1.3 ids in such a frame, of about 65 continued */
     cfg->reassoc_radius = 60.0;
-    cfg->moving_fraction = 0.05;       /* 2.8 % of 0027's tracks have a median one-step error > 3 px */
+    cfg->moving_fraction = 0.05; /* 2.8 % of 0027's tracks have a median one-step error > 3 px */
     cfg->moving_speed = 3.0;
     cfg->mismatch_probability = 0.0002; /* 0.02 % of 0027's observations are off by > 10 px alone */
-    cfg->far_fraction = 0.06;          /* real: 1 to 5 % of observations under 2 px, 14 to 18 % under 5 */
+    cfg->far_fraction = 0.06;           /* real: 1 to 5 % of observations under 2 px, 14 to 18 % under 5 */
     cfg->far_disparity_min = 0.8;
     cfg->far_disparity_max = 4.8;
-    for (i = 0; i < 3; ++i) {          /* a guess: the data cannot show a calibration error */
+    for (i = 0; i < 3; ++i) { /* a guess: the data cannot show a calibration error */
         cfg->calib_rotation_error[i] = (i == 1) ? -0.1 : 0.1;
         cfg->calib_translation_error[i] = (i == 1) ? -0.01 : 0.01;
     }
@@ -248,48 +265,74 @@ static int unit_range(double x)
 
 static int config_ok(const vl_sim_config_t *c)
 {
-    const double scalars[] = {
-        c->dt_min, c->dt_max, c->speed, c->speed_wobble, c->side_wobble, c->turn_angle,
-        c->left_turn_probability,
-        c->turn_angle_spread, c->turn_period, c->first_turn_time, c->turn_duration, c->yaw_wobble,
-        c->roll_pitch_rate, c->points_per_meter, c->road_half_width, c->scatter_radius,
-        c->scatter_exponent, c->height_min, c->height_max, c->image_width, c->image_height,
-        c->border_margin, c->min_depth, c->max_depth, c->detect_probability,
-        c->track_length_mean,
-        c->pixel_noise, c->linear_noise, c->angular_noise, c->stale_probability,
-        c->detect_below_fraction, c->detect_new_fraction, c->reassoc_probability, c->reassoc_fraction,
-        c->reassoc_radius, c->moving_fraction, c->moving_speed, c->mismatch_probability,
-        c->far_fraction, c->far_disparity_min, c->far_disparity_max, c->baseline_error};
-    if (!finite_all(scalars, sizeof(scalars) / sizeof(scalars[0])) ||
-        !finite_all(c->linear_offset, 3) || !finite_all(c->angular_offset, 3) ||
-        !finite_all(&c->calibration.fx, 5) || !finite_all(c->calibration.cam_T_imu, 16) ||
-        !finite_all(c->calib_rotation_error, 3) || !finite_all(c->calib_translation_error, 3)) {
+    const double scalars[] = {c->dt_min,
+                              c->dt_max,
+                              c->speed,
+                              c->speed_wobble,
+                              c->side_wobble,
+                              c->turn_angle,
+                              c->left_turn_probability,
+                              c->turn_angle_spread,
+                              c->turn_period,
+                              c->first_turn_time,
+                              c->turn_duration,
+                              c->yaw_wobble,
+                              c->roll_pitch_rate,
+                              c->points_per_meter,
+                              c->road_half_width,
+                              c->scatter_radius,
+                              c->scatter_exponent,
+                              c->height_min,
+                              c->height_max,
+                              c->image_width,
+                              c->image_height,
+                              c->border_margin,
+                              c->min_depth,
+                              c->max_depth,
+                              c->detect_probability,
+                              c->track_length_mean,
+                              c->pixel_noise,
+                              c->linear_noise,
+                              c->angular_noise,
+                              c->stale_probability,
+                              c->detect_below_fraction,
+                              c->detect_new_fraction,
+                              c->reassoc_probability,
+                              c->reassoc_fraction,
+                              c->reassoc_radius,
+                              c->moving_fraction,
+                              c->moving_speed,
+                              c->mismatch_probability,
+                              c->far_fraction,
+                              c->far_disparity_min,
+                              c->far_disparity_max,
+                              c->baseline_error};
+    if (!finite_all(scalars, sizeof(scalars) / sizeof(scalars[0])) || !finite_all(c->linear_offset, 3) ||
+        !finite_all(c->angular_offset, 3) || !finite_all(&c->calibration.fx, 5) ||
+        !finite_all(c->calibration.cam_T_imu, 16) || !finite_all(c->calib_rotation_error, 3) ||
+        !finite_all(c->calib_translation_error, 3)) {
         return 0;
     }
     if (!(unit_range(c->stale_probability) && unit_range(c->detect_below_fraction) &&
-          unit_range(c->detect_new_fraction) && unit_range(c->reassoc_probability) &&
-          unit_range(c->reassoc_fraction) && unit_range(c->moving_fraction) &&
-          unit_range(c->mismatch_probability) && unit_range(c->far_fraction) &&
-          c->reassoc_radius >= 0.0 && c->moving_speed >= 0.0 && c->moving_speed < 1e3 &&
-          c->baseline_error > -0.5 && c->baseline_error < 0.5 &&
-          (c->far_fraction == 0.0 ||
-           (c->far_disparity_min > 0.0 && c->far_disparity_max >= c->far_disparity_min)))) {
+          unit_range(c->detect_new_fraction) && unit_range(c->reassoc_probability) && unit_range(c->reassoc_fraction) &&
+          unit_range(c->moving_fraction) && unit_range(c->mismatch_probability) && unit_range(c->far_fraction) &&
+          c->reassoc_radius >= 0.0 && c->moving_speed >= 0.0 && c->moving_speed < 1e3 && c->baseline_error > -0.5 &&
+          c->baseline_error < 0.5 &&
+          (c->far_fraction == 0.0 || (c->far_disparity_min > 0.0 && c->far_disparity_max >= c->far_disparity_min)))) {
         return 0;
     }
-    return c->dt_min > 0.0 && c->dt_max >= c->dt_min && c->dt_max < 1000.0 &&
-           c->turn_period > 0.0 && c->turn_duration > 0.0 && c->turn_duration <= c->turn_period &&
-           c->turn_angle_spread >= 0.0 && c->left_turn_probability >= 0.0 &&
-           c->left_turn_probability <= 1.0 && c->points_per_meter >= 0.0 && c->road_half_width >= 0.0 &&
-           c->scatter_radius > c->road_half_width && c->scatter_exponent > 0.0 &&
-           c->height_max >= c->height_min && c->max_depth < 1e4 && c->scatter_radius < 1e4 &&
-           c->calibration.fx > 0.0 && c->calibration.fy > 0.0 && c->calibration.baseline > 0.0 &&
-           c->border_margin >= 0.0 && c->image_width > 2.0 * c->border_margin + 1.0 &&
-           c->image_height > 2.0 * c->border_margin + 1.0 && c->min_depth > 0.0 &&
-           c->max_depth > c->min_depth && c->max_observations >= 1 &&
+    return c->dt_min > 0.0 && c->dt_max >= c->dt_min && c->dt_max < 1000.0 && c->turn_period > 0.0 &&
+           c->turn_duration > 0.0 && c->turn_duration <= c->turn_period && c->turn_angle_spread >= 0.0 &&
+           c->left_turn_probability >= 0.0 && c->left_turn_probability <= 1.0 && c->points_per_meter >= 0.0 &&
+           c->road_half_width >= 0.0 && c->scatter_radius > c->road_half_width && c->scatter_exponent > 0.0 &&
+           c->height_max >= c->height_min && c->max_depth < 1e4 && c->scatter_radius < 1e4 && c->calibration.fx > 0.0 &&
+           c->calibration.fy > 0.0 && c->calibration.baseline > 0.0 && c->border_margin >= 0.0 &&
+           c->image_width > 2.0 * c->border_margin + 1.0 && c->image_height > 2.0 * c->border_margin + 1.0 &&
+           c->min_depth > 0.0 && c->max_depth > c->min_depth && c->max_observations >= 1 &&
            c->max_observations <= VL_MAX_FRAME_FEATURES && c->detect_probability >= 0.0 &&
            c->detect_probability <= 1.0 && c->track_length_min >= 1 &&
-           c->track_length_mean >= (double)c->track_length_min && c->track_length_mean < 1e6 &&
-           c->pixel_noise >= 0.0 && c->linear_noise >= 0.0 && c->angular_noise >= 0.0;
+           c->track_length_mean >= (double)c->track_length_min && c->track_length_mean < 1e6 && c->pixel_noise >= 0.0 &&
+           c->linear_noise >= 0.0 && c->angular_noise >= 0.0;
 }
 
 /* ---------- the true motion ---------- */
@@ -402,8 +445,8 @@ static void scatter_segment(vl_sim_t *sim, uint64_t k)
     sim->spawn_carry += c->points_per_meter * len;
     while (sim->spawn_carry >= 1.0) {
         const double ang = VL_SIM_TWO_PI * rng_uniform(r);
-        const double rad = c->road_half_width +
-                           (c->scatter_radius - c->road_half_width) * pow(rng_uniform(r), c->scatter_exponent);
+        const double rad =
+            c->road_half_width + (c->scatter_radius - c->road_half_width) * pow(rng_uniform(r), c->scatter_exponent);
         const double h = c->height_min + (c->height_max - c->height_min) * rng_uniform(r);
         const double b[3] = {len * rng_uniform(r) + rad * cos(ang), rad * sin(ang), h};
         vl_sim_point_t *pt = &sim->points[sim->next_point];
@@ -565,8 +608,7 @@ static int project(const vl_sim_t *sim, const vl_sim_pose_t *pose, const double 
     hi_u = c->image_width - 1.0 - c->border_margin;
     lo_v = c->border_margin;
     hi_v = c->image_height - 1.0 - c->border_margin;
-    return px[0] >= lo_u && px[0] <= hi_u && px[2] >= lo_u && px[2] <= hi_u && px[1] >= lo_v &&
-           px[1] <= hi_v;
+    return px[0] >= lo_u && px[0] <= hi_u && px[2] >= lo_u && px[2] <= hi_u && px[1] >= lo_v && px[1] <= hi_v;
 }
 
 /** Where the current track of a point sees it at time utime (moving points move, lost motion shifts). */
@@ -722,8 +764,7 @@ static void lose_one_step(vl_sim_point_t *pt, const vl_sim_pose_t *k0, const vl_
     pt->shifted = 1;
 }
 
-int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
-                double true_R[9], double true_p[3])
+int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame, double true_R[9], double true_p[3])
 {
     const vl_sim_config_t *c;
     const vl_sim_pose_t *pose;
@@ -746,13 +787,11 @@ int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
            segment needs the path planned scatter_radius beyond it for the road test. */
         const double scatter_ahead = c->max_depth + c->scatter_radius + 5.0;
         const double plan_ahead = scatter_ahead + c->scatter_radius + c->road_half_width + 5.0;
-        while (sim->planned < sim->step + 2 ||
-               (ring_at(sim, sim->planned - 1)->s - pose->s < plan_ahead &&
-                sim->planned - sim->step < VL_SIM_POSE_RING - 1)) {
+        while (sim->planned < sim->step + 2 || (ring_at(sim, sim->planned - 1)->s - pose->s < plan_ahead &&
+                                                sim->planned - sim->step < VL_SIM_POSE_RING - 1)) {
             plan_one(sim);
         }
-        while (sim->scattered + 1 < sim->planned &&
-               ring_at(sim, sim->scattered)->s - pose->s < scatter_ahead) {
+        while (sim->scattered + 1 < sim->planned && ring_at(sim, sim->scattered)->s - pose->s < scatter_ahead) {
             scatter_segment(sim, sim->scattered++);
         }
     }
@@ -865,8 +904,7 @@ int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
         o->v_left = noisy_pixel(sim, px[1], hv);
         o->u_right = noisy_pixel(sim, px[2], hu);
         o->v_right = noisy_pixel(sim, px[1], hv);
-        if (c->mismatch_probability > 0.0 && i < n_cont &&
-            rng_uniform(&sim->rng_event) < c->mismatch_probability) {
+        if (c->mismatch_probability > 0.0 && i < n_cont && rng_uniform(&sim->rng_event) < c->mismatch_probability) {
             /* Another location's pixels: anywhere in the image, a disparity of 1 to 40 px. */
             const double disp = 1.0 + 39.0 * rng_uniform(&sim->rng_event);
             o->u_left = hu * rng_uniform(&sim->rng_event);

@@ -88,72 +88,72 @@ extern "C" {
 
 /** Scenario configuration. Start from vl_sim_config_default(). */
 typedef struct {
-    uint64_t seed;          /**< world: path, time jitter, points, track lengths */
-    uint64_t noise_seed;    /**< measurement noise only (pixels, velocities) */
-    uint32_t num_steps;     /**< steps to produce; 0 = unlimited */
-    int64_t start_utime;    /**< us, time of step 0 */
+    uint64_t seed;       /**< world: path, time jitter, points, track lengths */
+    uint64_t noise_seed; /**< measurement noise only (pixels, velocities) */
+    uint32_t num_steps;  /**< steps to produce; 0 = unlimited */
+    int64_t start_utime; /**< us, time of step 0 */
 
-    double dt_min;          /**< s, shortest step (uniform in [dt_min, dt_max]) */
-    double dt_max;          /**< s, longest step */
+    double dt_min; /**< s, shortest step (uniform in [dt_min, dt_max]) */
+    double dt_max; /**< s, longest step */
 
-    double speed;           /**< m/s, mean forward (IMU x) speed */
-    double speed_wobble;    /**< m/s, amplitude of the slow forward speed variation */
-    double side_wobble;     /**< m/s, amplitude of the lateral (y) and vertical (z) velocity */
-    double turn_angle;      /**< rad, mean magnitude of each turn */
+    double speed;                 /**< m/s, mean forward (IMU x) speed */
+    double speed_wobble;          /**< m/s, amplitude of the slow forward speed variation */
+    double side_wobble;           /**< m/s, amplitude of the lateral (y) and vertical (z) velocity */
+    double turn_angle;            /**< rad, mean magnitude of each turn */
     double left_turn_probability; /**< chance that a turn goes left (the rest go right); 1 drives a loop */
-    double turn_angle_spread; /**< relative std of each turn's angle (0 = all equal) */
-    double turn_period;     /**< s, time between turn centres */
-    double first_turn_time; /**< s, centre of the first turn after step 0 */
-    double turn_duration;   /**< s, length of each raised-cosine turn (<= turn_period) */
-    double yaw_wobble;      /**< rad/s, amplitude of a slow yaw-rate wander */
-    double roll_pitch_rate; /**< rad/s, amplitude of the roll and pitch rates */
+    double turn_angle_spread;     /**< relative std of each turn's angle (0 = all equal) */
+    double turn_period;           /**< s, time between turn centres */
+    double first_turn_time;       /**< s, centre of the first turn after step 0 */
+    double turn_duration;         /**< s, length of each raised-cosine turn (<= turn_period) */
+    double yaw_wobble;            /**< rad/s, amplitude of a slow yaw-rate wander */
+    double roll_pitch_rate;       /**< rad/s, amplitude of the roll and pitch rates */
 
-    double points_per_meter;  /**< points scattered per metre of path */
-    double road_half_width;   /**< m, no point lies closer than this (horizontally) to the path */
-    double scatter_radius;    /**< m, points lie within this distance of the path pose that placed them */
-    double scatter_exponent;  /**< > 1 concentrates points near the path (r = w + (radius - w) * U^exponent) */
-    double height_min;        /**< m, point height over the placing pose (its z up) */
-    double height_max;        /**< m */
+    double points_per_meter; /**< points scattered per metre of path */
+    double road_half_width;  /**< m, no point lies closer than this (horizontally) to the path */
+    double scatter_radius;   /**< m, points lie within this distance of the path pose that placed them */
+    double scatter_exponent; /**< > 1 concentrates points near the path (r = w + (radius - w) * U^exponent) */
+    double height_min;       /**< m, point height over the placing pose (its z up) */
+    double height_max;       /**< m */
 
     vl_calibration_t calibration; /**< stereo rig (default: the KITTI 0027 values) */
-    double image_width;     /**< px, u in [0, image_width - 1] */
-    double image_height;    /**< px, v in [0, image_height - 1] */
-    double border_margin;   /**< px, true projections must lie this far inside the image */
-    double min_depth;       /**< m, nearest observable depth (camera z) */
-    double max_depth;       /**< m, farthest observable depth */
-    uint32_t max_observations; /**< observations per frame, 1..VL_MAX_FRAME_FEATURES */
-    double detect_probability; /**< per frame, that a visible untracked point starts a track */
-    double track_length_mean;  /**< frames, mean of the per-track maximum length */
-    uint32_t track_length_min; /**< frames, shortest per-track maximum length (>= 1) */
+    double image_width;           /**< px, u in [0, image_width - 1] */
+    double image_height;          /**< px, v in [0, image_height - 1] */
+    double border_margin;         /**< px, true projections must lie this far inside the image */
+    double min_depth;             /**< m, nearest observable depth (camera z) */
+    double max_depth;             /**< m, farthest observable depth */
+    uint32_t max_observations;    /**< observations per frame, 1..VL_MAX_FRAME_FEATURES */
+    double detect_probability;    /**< per frame, that a visible untracked point starts a track */
+    double track_length_mean;     /**< frames, mean of the per-track maximum length */
+    uint32_t track_length_min;    /**< frames, shortest per-track maximum length (>= 1) */
 
-    double pixel_noise;     /**< px, std of each of u_left, v_left, u_right, v_right */
-    double linear_noise;    /**< m/s, std of each linear velocity sample and axis */
-    double angular_noise;   /**< rad/s, std of each angular velocity sample and axis */
+    double pixel_noise;       /**< px, std of each of u_left, v_left, u_right, v_right */
+    double linear_noise;      /**< m/s, std of each linear velocity sample and axis */
+    double angular_noise;     /**< rad/s, std of each angular velocity sample and axis */
     double linear_offset[3];  /**< m/s, constant offset added to the linear velocities */
     double angular_offset[3]; /**< rad/s, constant offset added to the angular velocities */
 
     /* Realistic conditions (see the file comment); 0 turns each one off. */
-    double stale_probability;     /**< per frame after step 0, that the frame is stale */
-    double detect_below_fraction; /**< of max_observations: when > 0, tracks start only on step 0 and
+    double stale_probability;          /**< per frame after step 0, that the frame is stale */
+    double detect_below_fraction;      /**< of max_observations: when > 0, tracks start only on step 0 and
                                        on frames after one with fewer observations than this share
                                        (rounded, at least 1) and that was not stale itself;
                                        those frames are stale */
-    double detect_new_fraction;   /**< of max_observations: most tracks started per frame (rounded, at
+    double detect_new_fraction;        /**< of max_observations: most tracks started per frame (rounded, at
                                        least 1); 0 = no limit */
-    double reassoc_probability;   /**< per frame, that continued ids are handed to other points */
-    double reassoc_fraction;      /**< share of the continued tracks re-associated in such a frame
+    double reassoc_probability;        /**< per frame, that continued ids are handed to other points */
+    double reassoc_fraction;           /**< share of the continued tracks re-associated in such a frame
                                        (each with this chance, at least one) */
-    double reassoc_radius;        /**< px, farthest a re-associated id's left pixel jumps */
-    double moving_fraction;       /**< share of placed points that move (constant world velocity) */
-    double moving_speed;          /**< m/s, speed of a moving point (horizontal, random heading) */
-    double mismatch_probability;  /**< per observation of a continued track: pixels of a random location */
-    double far_fraction;          /**< share of placed points put far ahead instead */
-    double far_disparity_min;     /**< px, smallest disparity of a far point (> 0) */
-    double far_disparity_max;     /**< px, largest disparity of a far point */
+    double reassoc_radius;             /**< px, farthest a re-associated id's left pixel jumps */
+    double moving_fraction;            /**< share of placed points that move (constant world velocity) */
+    double moving_speed;               /**< m/s, speed of a moving point (horizontal, random heading) */
+    double mismatch_probability;       /**< per observation of a continued track: pixels of a random location */
+    double far_fraction;               /**< share of placed points put far ahead instead */
+    double far_disparity_min;          /**< px, smallest disparity of a far point (> 0) */
+    double far_disparity_max;          /**< px, largest disparity of a far point */
     double calib_rotation_error[3];    /**< deg, rotation vector (camera axes) applied to cam_T_imu
                                             for the observations */
     double calib_translation_error[3]; /**< m, added to cam_T_imu's translation for the observations */
-    double baseline_error;        /**< relative: observations use baseline * (1 + baseline_error) */
+    double baseline_error;             /**< relative: observations use baseline * (1 + baseline_error) */
 } vl_sim_config_t;
 
 /** How often the realistic conditions occurred so far. */
@@ -172,11 +172,11 @@ typedef struct {
 
 /** One planned step: its time, true pose and true velocities. */
 typedef struct {
-    int64_t utime;  /**< us */
-    double R[9];    /**< world-from-IMU rotation, row-major */
-    double p[3];    /**< m */
-    double u[6];    /**< true [v (m/s); w (rad/s)] held from this step to the next */
-    double s;       /**< m, path length from step 0 */
+    int64_t utime; /**< us */
+    double R[9];   /**< world-from-IMU rotation, row-major */
+    double p[3];   /**< m */
+    double u[6];   /**< true [v (m/s); w (rad/s)] held from this step to the next */
+    double s;      /**< m, path length from step 0 */
 } vl_sim_pose_t;
 
 /** A world point and the state of its current track. */
@@ -195,15 +195,15 @@ typedef struct {
 /** The simulator. Caller-owned; read it only through the functions below. */
 typedef struct {
     vl_sim_config_t cfg;
-    vl_sim_rng_t rng_path;   /**< turn angles, phases, time jitter */
-    vl_sim_rng_t rng_map;    /**< point placement */
-    vl_sim_rng_t rng_track;  /**< detections and track lengths */
-    vl_sim_rng_t rng_noise;  /**< measurement noise */
-    vl_sim_rng_t rng_event;  /**< stale frames, re-associations, mismatches */
-    vl_sim_rng_t rng_place;  /**< far and moving points */
+    vl_sim_rng_t rng_path;      /**< turn angles, phases, time jitter */
+    vl_sim_rng_t rng_map;       /**< point placement */
+    vl_sim_rng_t rng_track;     /**< detections and track lengths */
+    vl_sim_rng_t rng_noise;     /**< measurement noise */
+    vl_sim_rng_t rng_event;     /**< stale frames, re-associations, mismatches */
+    vl_sim_rng_t rng_place;     /**< far and moving points */
     vl_calibration_t obs_calib; /**< the calibration the observations are made with */
 
-    double phase[8];         /**< rad, phases of the wobble terms */
+    double phase[8]; /**< rad, phases of the wobble terms */
 
     vl_sim_pose_t ring[VL_SIM_POSE_RING];
     uint64_t planned;        /**< poses planned (ring holds the last ones) */
@@ -213,17 +213,17 @@ typedef struct {
     double spawn_carry;      /**< fractional point carried to the next segment */
 
     vl_sim_point_t points[VL_SIM_MAX_POINTS];
-    uint32_t num_points;     /**< points placed, saturating at VL_SIM_MAX_POINTS */
-    uint32_t next_point;     /**< slot the next placed point takes */
+    uint32_t num_points; /**< points placed, saturating at VL_SIM_MAX_POINTS */
+    uint32_t next_point; /**< slot the next placed point takes */
 
     int32_t next_track_id;
     double track_x[VL_SIM_MAX_TRACKS][3]; /**< true position of track id (ring by id) */
 
-    vl_imu_sample_t last_true_imu; /**< noise-free velocities of the last step */
-    uint32_t cand_point[VL_MAX_FRAME_FEATURES]; /**< scratch: points observed this frame */
+    vl_imu_sample_t last_true_imu;                   /**< noise-free velocities of the last step */
+    uint32_t cand_point[VL_MAX_FRAME_FEATURES];      /**< scratch: points observed this frame */
     vl_stereo_obs_t last_obs[VL_MAX_FRAME_FEATURES]; /**< the last frame's observations (stale frames repeat them) */
-    uint32_t last_count;     /**< observations in the last frame */
-    uint8_t last_stale;      /**< 1 when the last frame was stale */
+    uint32_t last_count;                             /**< observations in the last frame */
+    uint8_t last_stale;                              /**< 1 when the last frame was stale */
     vl_sim_counts_t counts;
 } vl_sim_t;
 
@@ -254,8 +254,7 @@ int vl_sim_init(vl_sim_t *sim, const vl_sim_config_t *cfg);
  * @param true_p  true IMU position in the world at this step's time, m
  * @return 0 when a step was produced, 1 when num_steps have been produced already.
  */
-int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame,
-                double true_R[9], double true_p[3]);
+int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame, double true_R[9], double true_p[3]);
 
 /** The nominal stereo rig calibration (what the log carries; the observations may use a perturbed one). */
 void vl_sim_calibration(const vl_sim_t *sim, vl_calibration_t *calib);

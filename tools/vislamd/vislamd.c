@@ -59,12 +59,12 @@
 #define CHANNEL_MAX 64
 #define DEFAULT_BUDGET_US 100000
 #define STATUS_PERIOD_US 1000000
-#define STATUS_LOG_EVERY 10          /* statuses between two status lines on stderr */
+#define STATUS_LOG_EVERY 10 /* statuses between two status lines on stderr */
 #define OVERRUN_LOG_PERIOD_US 1000000
-#define INTERVAL_WINDOW 32           /* IMU intervals the automatic budget takes the median of */
+#define INTERVAL_WINDOW 32 /* IMU intervals the automatic budget takes the median of */
 #define STACK_PREFAULT_BYTES (256 * 1024)
-#define DRAIN_MAX 1000               /* messages already queued that are still processed at shutdown */
-#define LCM_ERRORS_MAX 100           /* consecutive lcm_handle failures before giving up */
+#define DRAIN_MAX 1000     /* messages already queued that are still processed at shutdown */
+#define LCM_ERRORS_MAX 100 /* consecutive lcm_handle failures before giving up */
 #define ENCODE_BUF 1024
 
 typedef struct {
@@ -73,9 +73,9 @@ typedef struct {
     const char *trajectory_path;
     const char *prefix;
     const char *channel[6];
-    long budget_us;   /* 0: automatic */
-    int rt_priority;  /* 0: leave the scheduler alone */
-    int cpu;          /* -1: no affinity */
+    long budget_us;  /* 0: automatic */
+    int rt_priority; /* 0: leave the scheduler alone */
+    int cpu;         /* -1: no affinity */
     int no_mlock;
     int quiet;
     int print_config;
@@ -83,7 +83,7 @@ typedef struct {
 
 enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_COUNT };
 
-static const char *const channel_default[CH_COUNT] = {VL_CHANNEL_IMU,  VL_CHANNEL_FEATURES,  VL_CHANNEL_CALIBRATION,
+static const char *const channel_default[CH_COUNT] = {VL_CHANNEL_IMU,  VL_CHANNEL_FEATURES, VL_CHANNEL_CALIBRATION,
                                                       VL_CHANNEL_POSE, VL_CHANNEL_BOT_POSE, VL_CHANNEL_STATUS};
 static const char *const channel_option[CH_COUNT] = {"--imu-channel",  "--features-channel", "--calib-channel",
                                                      "--pose-channel", "--bot-pose-channel", "--status-channel"};
@@ -145,9 +145,10 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: vislamd [options]\n"
-            "Runs the vislam estimator on LCM messages: subscribes to " VL_CHANNEL_IMU ", " VL_CHANNEL_FEATURES " and\n"
-            VL_CHANNEL_CALIBRATION ", publishes " VL_CHANNEL_POSE " and " VL_CHANNEL_BOT_POSE " (bot_core.pose_t) after every step and\n"
-            VL_CHANNEL_STATUS " once a second. Stops on SIGINT or SIGTERM after the current step.\n"
+            "Runs the vislam estimator on LCM messages: subscribes to " VL_CHANNEL_IMU ", " VL_CHANNEL_FEATURES
+            " and\n" VL_CHANNEL_CALIBRATION ", publishes " VL_CHANNEL_POSE " and " VL_CHANNEL_BOT_POSE
+            " (bot_core.pose_t) after every step and\n" VL_CHANNEL_STATUS
+            " once a second. Stops on SIGINT or SIGTERM after the current step.\n"
             "\n"
             "  --config FILE           INI configuration on top of the defaults (see tools/vislam.ini);\n"
             "                          its [calibration] is used until the " VL_CHANNEL_CALIBRATION " message arrives\n"
@@ -194,7 +195,7 @@ static int parse_long(const char *opt, const char *s, long lo, long hi, long *ou
 
 static int takes_value(const char *a)
 {
-    static const char *const names[] = {"--config", "--lcm-url", "--trajectory", "--channel-prefix",
+    static const char *const names[] = {"--config",    "--lcm-url",     "--trajectory", "--channel-prefix",
                                         "--budget-us", "--rt-priority", "--cpu"};
     for (size_t i = 0; i < sizeof(names) / sizeof(names[0]); ++i) {
         if (strcmp(a, names[i]) == 0) {
@@ -355,8 +356,8 @@ static void finish_step(daemon_t *d, step_kind_t kind, int64_t t0, int64_t utime
     /* At most one line a second: a slow machine must not also drown in its own log. */
     if (d->last_overrun_log_us == 0 || t1 - d->last_overrun_log_us >= OVERRUN_LOG_PERIOD_US) {
         fprintf(stderr,
-                "vislamd: budget overrun: %s at utime %" PRId64 " took %" PRId64 " us > %" PRId64
-                " us (%" PRIu64 " overrun(s) since the last message, %" PRIu64 " in all)\n",
+                "vislamd: budget overrun: %s at utime %" PRId64 " took %" PRId64 " us > %" PRId64 " us (%" PRIu64
+                " overrun(s) since the last message, %" PRIu64 " in all)\n",
                 kind == STEP_UPDATE ? "update" : "propagation", utime, dt, d->budget_us, d->overruns_unlogged,
                 d->n.overruns);
         d->last_overrun_log_us = t1;
@@ -447,8 +448,8 @@ static void print_status_line(const daemon_t *d)
             " window %d/%d steps %" PRId64 " p50 %d p99 %d max %d us overruns %" PRId64 " (budget %" PRId64
             " us) health 0x%x",
             s->imu_in, s->frames_in, s->poses_out, s->inputs_rejected, (int)s->window_landmarks,
-            (int)s->window_capacity, s->steps, (int)s->latency_p50_us, (int)s->latency_p99_us,
-            (int)s->latency_max_us, s->budget_overruns, s->budget_us, (unsigned)s->health);
+            (int)s->window_capacity, s->steps, (int)s->latency_p50_us, (int)s->latency_p99_us, (int)s->latency_max_us,
+            s->budget_overruns, s->budget_us, (unsigned)s->health);
     fputc('\n', stderr);
 }
 
@@ -608,8 +609,8 @@ static void print_summary(const daemon_t *d)
             vl_signal_last() == SIGINT ? "SIGINT" : (vl_signal_last() == SIGTERM ? "SIGTERM" : "error"),
             vl_session_calibration_source(ss));
     fprintf(stderr,
-            "  in: imu %" PRIu64 " frames %" PRIu64 " calibrations %" PRIu64 "; out: poses %" PRIu64
-            " (+%" PRIu64 " on %s), statuses %" PRIu64 ", trajectory lines %" PRIu64 "\n",
+            "  in: imu %" PRIu64 " frames %" PRIu64 " calibrations %" PRIu64 "; out: poses %" PRIu64 " (+%" PRIu64
+            " on %s), statuses %" PRIu64 ", trajectory lines %" PRIu64 "\n",
             n->imu_in, n->frames_in, n->calibrations_in, n->poses_out, d->n.bot_poses_out, d->channel[CH_BOT_POSE],
             d->n.status_out, d->have_trajectory ? vl_trajectory_lines(&d->trajectory) : 0);
     vl_counter_entry_t list[VL_SESSION_NUM_COUNTERS];
@@ -622,8 +623,9 @@ static void print_summary(const daemon_t *d)
     }
     fprintf(stderr, "; publish errors %" PRIu64 "; trajectory write errors %" PRIu64 "\n", d->n.publish_errors,
             d->n.trajectory_errors);
-    fprintf(stderr, "  core: frames accepted %" PRIu64 ", observations used %" PRIu64 ", gated %" PRIu64
-                    ", landmarks mapped %" PRIu64 ", window %u/%u, numerical failures %" PRIu64 "\n",
+    fprintf(stderr,
+            "  core: frames accepted %" PRIu64 ", observations used %" PRIu64 ", gated %" PRIu64
+            ", landmarks mapped %" PRIu64 ", window %u/%u, numerical failures %" PRIu64 "\n",
             c->frames_accepted, c->observations_used, c->observations_gated, c->landmarks_marginalized,
             est != NULL ? (unsigned)vl_window_size(est) : 0u, (unsigned)vl_session_config(ss)->max_landmarks,
             c->numerical_failures);
@@ -683,10 +685,8 @@ int main(int argc, char **argv)
         /* Append: a restart (after a crash or kill -9) must not destroy the earlier run's poses. */
         char note[160];
         int appended = 0;
-        snprintf(note, sizeof(note), "vislamd (pid %ld) restarted: the lines below are a new run",
-                 (long)getpid());
-        if (vl_trajectory_open_append(&d->trajectory, d->opt.trajectory_path, note, &appended, err, sizeof(err)) !=
-            0) {
+        snprintf(note, sizeof(note), "vislamd (pid %ld) restarted: the lines below are a new run", (long)getpid());
+        if (vl_trajectory_open_append(&d->trajectory, d->opt.trajectory_path, note, &appended, err, sizeof(err)) != 0) {
             fprintf(stderr, "vislamd: %s\n", err);
             return EXIT_RUNTIME;
         }

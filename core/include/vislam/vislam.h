@@ -69,30 +69,30 @@ extern "C" {
  * are events of a call that succeeded.
  */
 typedef enum {
-    VL_OK = 0,                        /**< Done. */
-    VL_FRAME_TRUNCATED = 1,           /**< Frame had more than VL_MAX_FRAME_FEATURES observations;
+    VL_OK = 0,                         /**< Done. */
+    VL_FRAME_TRUNCATED = 1,            /**< Frame had more than VL_MAX_FRAME_FEATURES observations;
                                            the first ones were used, the rest counted. */
-    VL_RESET = 2,                     /**< The estimator re-initialized in this call, keeping its
+    VL_RESET = 2,                      /**< The estimator re-initialized in this call, keeping its
                                            configuration, calibration and counters: identity pose,
                                            empty window. On a new timeline (timeline_changes) the input
                                            is the first IMU sample of the new clock; after divergence
                                            (divergence_resets) the input was used, the divergence found
                                            after it, and the clock and held IMU sample are kept. */
-    VL_ERR_NULL = -1,                 /**< A required pointer was NULL. */
-    VL_ERR_CONFIG = -2,               /**< A configuration value is out of range (see vl_config_check). */
-    VL_ERR_NOT_READY = -3,            /**< A frame arrived before the first IMU sample set the clock. */
-    VL_ERR_NON_FINITE = -4,           /**< An input holds NaN or infinity; the sample was rejected. */
-    VL_ERR_TIME_ORDER = -5,           /**< Input time is not after the previous input of its kind,
+    VL_ERR_NULL = -1,                  /**< A required pointer was NULL. */
+    VL_ERR_CONFIG = -2,                /**< A configuration value is out of range (see vl_config_check). */
+    VL_ERR_NOT_READY = -3,             /**< A frame arrived before the first IMU sample set the clock. */
+    VL_ERR_NON_FINITE = -4,            /**< An input holds NaN or infinity; the sample was rejected. */
+    VL_ERR_TIME_ORDER = -5,            /**< Input time is not after the previous input of its kind,
                                            or earlier than the state; the sample was rejected. */
-    VL_ERR_NOT_POSITIVE_DEFINITE = -6,/**< The innovation covariance failed its Cholesky factorization;
+    VL_ERR_NOT_POSITIVE_DEFINITE = -6, /**< The innovation covariance failed its Cholesky factorization;
                                            the update was not applied. */
-    VL_ERR_CAPACITY = -7,             /**< Output buffer too small (vl_get_landmarks). */
-    VL_ERR_MISALIGNED = -8,           /**< The estimator is not VL_ESTIMATOR_ALIGN-byte aligned (heap
+    VL_ERR_CAPACITY = -7,              /**< Output buffer too small (vl_get_landmarks). */
+    VL_ERR_MISALIGNED = -8,            /**< The estimator is not VL_ESTIMATOR_ALIGN-byte aligned (heap
                                            copies need aligned_alloc; static ones are aligned). */
-    VL_ERR_TIME_JUMP = -9,            /**< Input time more than max_time_jump away from the estimator's
+    VL_ERR_TIME_JUMP = -9,             /**< Input time more than max_time_jump away from the estimator's
                                            clock, ahead or behind; refused, the clock did not move. */
-    VL_ERR_IMPLAUSIBLE = -10,         /**< IMU sample beyond max_speed or max_rotation_rate; refused. */
-    VL_ERR_IMU_SILENT = -11           /**< Frame more than max_imu_silence after the last IMU sample:
+    VL_ERR_IMPLAUSIBLE = -10,          /**< IMU sample beyond max_speed or max_rotation_rate; refused. */
+    VL_ERR_IMU_SILENT = -11            /**< Frame more than max_imu_silence after the last IMU sample:
                                            not propagated with a stale velocity, refused; the
                                            estimator is degraded until the IMU returns. */
 } vl_status_t;
@@ -120,12 +120,12 @@ typedef struct {
 
 /** A landmark as handed to the map or read from the window. */
 typedef struct {
-    int32_t id;             /**< track id from the frames */
-    double position[3];     /**< world frame, m */
-    double covariance[9];   /**< 3x3 row-major, m^2 */
-    uint32_t observations;  /**< frames that observed it, initialization included */
-    int64_t first_utime;    /**< us */
-    int64_t last_utime;     /**< us */
+    int32_t id;            /**< track id from the frames */
+    double position[3];    /**< world frame, m */
+    double covariance[9];  /**< 3x3 row-major, m^2 */
+    uint32_t observations; /**< frames that observed it, initialization included */
+    int64_t first_utime;   /**< us */
+    int64_t last_utime;    /**< us */
 } vl_landmark_t;
 
 /** Receives each landmark leaving the window. Called from vl_update / vl_flush_landmarks. */
@@ -153,9 +153,9 @@ typedef struct {
     VL_CONFIG_CTYPE_##type field;
     VL_CONFIG_KEYS(VL_CONFIG_MEMBER_)
 #undef VL_CONFIG_MEMBER_
-/** @endcond */
+    /** @endcond */
 
-    vl_calibration_t calibration;   /**< stereo rig */
+    vl_calibration_t calibration; /**< stereo rig */
 
     vl_landmark_sink_fn landmark_sink; /**< optional: receives marginalized landmarks */
     void *landmark_sink_user;          /**< passed to landmark_sink */
@@ -165,37 +165,37 @@ typedef struct {
 
 /** One IMU velocity sample. */
 typedef struct {
-    int64_t utime;               /**< us */
-    double linear_velocity[3];   /**< body frame, m/s */
-    double angular_velocity[3];  /**< body frame, rad/s */
+    int64_t utime;              /**< us */
+    double linear_velocity[3];  /**< body frame, m/s */
+    double angular_velocity[3]; /**< body frame, rad/s */
 } vl_imu_sample_t;
 
 /** One stereo observation of a tracked keypoint. */
 typedef struct {
-    int32_t id;       /**< track id, unique per track */
-    double u_left;    /**< px */
-    double v_left;    /**< px */
-    double u_right;   /**< px */
-    double v_right;   /**< px */
+    int32_t id;     /**< track id, unique per track */
+    double u_left;  /**< px */
+    double v_left;  /**< px */
+    double u_right; /**< px */
+    double v_right; /**< px */
 } vl_stereo_obs_t;
 
 /** One camera frame of stereo observations. */
 typedef struct {
-    int64_t utime;                                   /**< us */
-    uint32_t count;                                  /**< observations given (may exceed capacity) */
-    vl_stereo_obs_t obs[VL_MAX_FRAME_FEATURES];      /**< the first min(count, capacity) are read */
+    int64_t utime;                              /**< us */
+    uint32_t count;                             /**< observations given (may exceed capacity) */
+    vl_stereo_obs_t obs[VL_MAX_FRAME_FEATURES]; /**< the first min(count, capacity) are read */
 } vl_stereo_frame_t;
 
 /** Pose estimate. */
 typedef struct {
-    int64_t utime;             /**< us, time of the state */
-    double rotation[9];        /**< world-from-IMU rotation, row-major */
-    double position[3];        /**< IMU origin in the world, m */
-    double covariance[36];     /**< 6x6 row-major over [rho (m), phi (rad)] */
-    double linear_velocity[3]; /**< last offset-corrected body velocity, m/s */
-    double angular_velocity[3];/**< last offset-corrected body angular velocity, rad/s */
-    double linear_offset[3];   /**< estimated linear velocity offset, m/s */
-    double angular_offset[3];  /**< estimated angular velocity offset, rad/s */
+    int64_t utime;                 /**< us, time of the state */
+    double rotation[9];            /**< world-from-IMU rotation, row-major */
+    double position[3];            /**< IMU origin in the world, m */
+    double covariance[36];         /**< 6x6 row-major over [rho (m), phi (rad)] */
+    double linear_velocity[3];     /**< last offset-corrected body velocity, m/s */
+    double angular_velocity[3];    /**< last offset-corrected body angular velocity, rad/s */
+    double linear_offset[3];       /**< estimated linear velocity offset, m/s */
+    double angular_offset[3];      /**< estimated angular velocity offset, rad/s */
     double linear_velocity_noise;  /**< m/s, per-sample noise std in use (adapted with adaptive_noise) */
     double angular_velocity_noise; /**< rad/s, likewise */
     double pixel_noise;            /**< px, likewise */
@@ -207,41 +207,41 @@ typedef struct {
  * new counter is one line here. All counters are monotonic since vl_init; the
  * type is uint64_t or uint32_t (vl_counter_entry_t carries any of them).
  */
-#define VL_COUNTERS(X) \
-    X(uint64_t, imu_accepted,               "IMU samples used") \
-    X(uint64_t, imu_rejected,               "IMU samples refused (non-finite, time order, time jump, implausible)") \
-    X(uint64_t, frames_accepted,            "frames used") \
-    X(uint64_t, frames_rejected,            "frames refused (time order, time jump, not ready, IMU silent)") \
-    X(uint64_t, frames_truncated,           "frames over VL_MAX_FRAME_FEATURES") \
-    X(uint64_t, observations_received,      "observations in accepted frames, before truncation") \
-    X(uint64_t, observations_truncated,     "observations dropped by truncation") \
-    X(uint64_t, observations_invalid,       "non-finite pixels, duplicate ids, negative ids") \
-    X(uint64_t, observations_low_disparity, "refused for disparity below min_disparity or depth above max_depth") \
-    X(uint64_t, observations_used,          "applied in an update") \
-    X(uint64_t, observations_gated,         "refused as outliers (RANSAC or gate, and not rescued)") \
-    X(uint64_t, observations_rescued,       "outliers of the first pass accepted after the correction") \
-    X(uint64_t, observations_deferred,      "inliers left out of an update by max_update_observations") \
-    X(uint64_t, observations_behind_camera, "predicted behind the camera: not used") \
-    X(uint64_t, landmarks_initialized,      "admitted to the window") \
-    X(uint64_t, landmarks_deferred,         "admissions postponed because the window was full") \
-    X(uint64_t, tracks_inconsistent,        "candidate observations that disagreed with their track's previous one") \
-    X(uint64_t, frames_reassociated,        "frames whose tracked observations were all distrusted") \
-    X(uint64_t, frames_repeated,            "frames repeating the previous frame's pixels exactly (a stale image)") \
-    X(uint64_t, tracks_broken,              "window landmarks whose observation contradicted them: mapped, id restarted") \
-    X(uint64_t, landmarks_marginalized,     "left the window and handed to the sink") \
-    X(uint64_t, landmarks_evicted,          "of those, removed early to make room") \
-    X(uint64_t, numerical_failures,         "updates refused with VL_ERR_NOT_POSITIVE_DEFINITE") \
-    X(uint64_t, time_gaps,                  "propagations longer than max_propagation_dt") \
-    X(uint64_t, time_jumps,                 "inputs refused as more than max_time_jump from the clock") \
-    X(uint64_t, timeline_changes,           "re-initializations on a new timeline") \
-    X(uint64_t, divergence_resets,          "re-initializations after divergence") \
-    X(uint64_t, resets,                     "every re-initialization (those two and vl_reset)") \
-    X(uint64_t, landmarks_discarded,        "window landmarks dropped by a reset (not handed to the sink)") \
-    X(uint64_t, imu_implausible,            "IMU samples beyond max_speed or max_rotation_rate") \
-    X(uint64_t, observations_implausible,   "pixels outside the image (with margin) or disparity over max_disparity") \
-    X(uint64_t, imu_silences,               "times the IMU fell silent for longer than max_imu_silence") \
-    X(uint64_t, frames_imu_silent,          "frames refused because the IMU was silent") \
-    X(uint32_t, window_peak,                "most landmarks ever in the window")
+#define VL_COUNTERS(X)                                                                                              \
+    X(uint64_t, imu_accepted, "IMU samples used")                                                                   \
+    X(uint64_t, imu_rejected, "IMU samples refused (non-finite, time order, time jump, implausible)")               \
+    X(uint64_t, frames_accepted, "frames used")                                                                     \
+    X(uint64_t, frames_rejected, "frames refused (time order, time jump, not ready, IMU silent)")                   \
+    X(uint64_t, frames_truncated, "frames over VL_MAX_FRAME_FEATURES")                                              \
+    X(uint64_t, observations_received, "observations in accepted frames, before truncation")                        \
+    X(uint64_t, observations_truncated, "observations dropped by truncation")                                       \
+    X(uint64_t, observations_invalid, "non-finite pixels, duplicate ids, negative ids")                             \
+    X(uint64_t, observations_low_disparity, "refused for disparity below min_disparity or depth above max_depth")   \
+    X(uint64_t, observations_used, "applied in an update")                                                          \
+    X(uint64_t, observations_gated, "refused as outliers (RANSAC or gate, and not rescued)")                        \
+    X(uint64_t, observations_rescued, "outliers of the first pass accepted after the correction")                   \
+    X(uint64_t, observations_deferred, "inliers left out of an update by max_update_observations")                  \
+    X(uint64_t, observations_behind_camera, "predicted behind the camera: not used")                                \
+    X(uint64_t, landmarks_initialized, "admitted to the window")                                                    \
+    X(uint64_t, landmarks_deferred, "admissions postponed because the window was full")                             \
+    X(uint64_t, tracks_inconsistent, "candidate observations that disagreed with their track's previous one")       \
+    X(uint64_t, frames_reassociated, "frames whose tracked observations were all distrusted")                       \
+    X(uint64_t, frames_repeated, "frames repeating the previous frame's pixels exactly (a stale image)")            \
+    X(uint64_t, tracks_broken, "window landmarks whose observation contradicted them: mapped, id restarted")        \
+    X(uint64_t, landmarks_marginalized, "left the window and handed to the sink")                                   \
+    X(uint64_t, landmarks_evicted, "of those, removed early to make room")                                          \
+    X(uint64_t, numerical_failures, "updates refused with VL_ERR_NOT_POSITIVE_DEFINITE")                            \
+    X(uint64_t, time_gaps, "propagations longer than max_propagation_dt")                                           \
+    X(uint64_t, time_jumps, "inputs refused as more than max_time_jump from the clock")                             \
+    X(uint64_t, timeline_changes, "re-initializations on a new timeline")                                           \
+    X(uint64_t, divergence_resets, "re-initializations after divergence")                                           \
+    X(uint64_t, resets, "every re-initialization (those two and vl_reset)")                                         \
+    X(uint64_t, landmarks_discarded, "window landmarks dropped by a reset (not handed to the sink)")                \
+    X(uint64_t, imu_implausible, "IMU samples beyond max_speed or max_rotation_rate")                               \
+    X(uint64_t, observations_implausible, "pixels outside the image (with margin) or disparity over max_disparity") \
+    X(uint64_t, imu_silences, "times the IMU fell silent for longer than max_imu_silence")                          \
+    X(uint64_t, frames_imu_silent, "frames refused because the IMU was silent")                                     \
+    X(uint32_t, window_peak, "most landmarks ever in the window")
 
 /** Running counters; all monotonic since vl_init. One member per VL_COUNTERS row (meaning there). */
 typedef struct {
@@ -277,17 +277,17 @@ typedef struct {
     int32_t id;
     uint32_t frames_seen;
     uint64_t last_frame;
-    double point[3];        /**< world point triangulated at its last observation, m */
-    double covariance[9];   /**< its covariance from pixel noise alone, m^2 */
+    double point[3];      /**< world point triangulated at its last observation, m */
+    double covariance[9]; /**< its covariance from pixel noise alone, m^2 */
 } vl_pending_track_t;
 
 /** One observation's rows of the joint update (internal workspace). */
 typedef struct {
-    double H_pose[18];     /**< 3x6 row-major, d y / d xi */
-    double H_landmark[9];  /**< 3x3 row-major, d y / d landmark state */
-    double residual[3];    /**< measured minus predicted, px */
-    double noise_var[3];   /**< observation noise diagonal, px^2 */
-    int landmark_col;      /**< first state index of the landmark */
+    double H_pose[18];    /**< 3x6 row-major, d y / d xi */
+    double H_landmark[9]; /**< 3x3 row-major, d y / d landmark state */
+    double residual[3];   /**< measured minus predicted, px */
+    double noise_var[3];  /**< observation noise diagonal, px^2 */
+    int landmark_col;     /**< first state index of the landmark */
 } vl_obs_row_t;
 
 /** Capacity of the pending-track table. */
@@ -304,14 +304,14 @@ typedef struct {
 
     int initialized;
     int have_imu;
-    int64_t state_utime;        /**< us */
-    int64_t last_imu_utime;     /**< us */
-    int64_t last_frame_utime;   /**< us */
+    int64_t state_utime;      /**< us */
+    int64_t last_imu_utime;   /**< us */
+    int64_t last_frame_utime; /**< us */
     uint64_t frame_index;
-    int have_frame;             /**< a frame was accepted on this timeline */
-    int64_t clock_utime;        /**< us, latest input time that passed the time policy */
-    int imu_silent;             /**< the IMU has been silent longer than max_imu_silence */
-    uint32_t failed_frame_run;  /**< consecutive frames whose update failed (divergence guard) */
+    int have_frame;            /**< a frame was accepted on this timeline */
+    int64_t clock_utime;       /**< us, latest input time that passed the time policy */
+    int imu_silent;            /**< the IMU has been silent longer than max_imu_silence */
+    uint32_t failed_frame_run; /**< consecutive frames whose update failed (divergence guard) */
     /** A candidate new timeline: consecutive time-refused inputs that follow one another. */
     uint32_t timeline_count;
     int64_t timeline_last_utime;       /**< us, latest input of the candidate */
@@ -319,12 +319,12 @@ typedef struct {
     int64_t timeline_last_frame_utime; /**< us, latest frame of the candidate */
     int timeline_have_imu, timeline_have_frame;
 
-    double R[9];                /**< world-from-IMU rotation, row-major */
-    double p[3];                /**< m */
-    double held_linear[3];      /**< raw last linear velocity sample, m/s */
-    double held_angular[3];     /**< raw last angular velocity sample, rad/s */
-    double offset_linear[3];    /**< m/s */
-    double offset_angular[3];   /**< rad/s */
+    double R[9];              /**< world-from-IMU rotation, row-major */
+    double p[3];              /**< m */
+    double held_linear[3];    /**< raw last linear velocity sample, m/s */
+    double held_angular[3];   /**< raw last angular velocity sample, rad/s */
+    double offset_linear[3];  /**< m/s */
+    double offset_angular[3]; /**< rad/s */
 
     uint32_t num_landmarks;
     vl_landmark_slot_t slots[VL_MAX_LANDMARKS];
