@@ -21,6 +21,7 @@ VL_REPO_ROOT="${VL_REPO_ROOT:-$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)}"
 #   LCM integration tests: iproute2 (`ip` inside `unshare --net`; util-linux gives unshare)
 #   benchmarks: valgrind
 #   fuzzing (tools/fuzz.sh, libFuzzer): clang libclang-rt-dev (the sanitizer and fuzzer runtimes)
+#   style: clang-format (the format_check test against .clang-format)
 #   misc: dpkg-dev (apt-get source), git, xz-utils
 VL_DEB_PACKAGES=(
   cmake g++ make pkg-config
@@ -29,6 +30,7 @@ VL_DEB_PACKAGES=(
   iproute2 util-linux
   valgrind
   clang libclang-rt-dev
+  clang-format
   dpkg-dev git xz-utils
 )
 
