@@ -33,7 +33,7 @@ import struct
 import sys
 import time
 
-from . import ToolError
+from . import ToolError, channels
 from .lcmtypes import load, load_lcm
 
 SYNC = 0xEDA1DA01
@@ -136,7 +136,7 @@ def _damage(vislam, event, kind, rng):
 
 
 def inject(in_path, out_path, fault, step=100, count=None, seed=1, offset_us=-HOUR_US,
-           imu_channel="VISLAM_IMU", features_channel="VISLAM_FEATURES"):
+           imu_channel=channels.IMU, features_channel=channels.FEATURES):
     """Write the faulty copy; returns a dict describing what was done (fault_utime: the first utime
     the fault touches, for no-imu the last sample removed; frames_after: frames of the input with a
     utime after it)."""
@@ -220,7 +220,7 @@ def inject(in_path, out_path, fault, step=100, count=None, seed=1, offset_us=-HO
     return info
 
 
-def foreign_poses(lcm_url=None, features_channel="VISLAM_FEATURES", pose_channel="VISLAM_POSE", seconds=60.0):
+def foreign_poses(lcm_url=None, features_channel=channels.FEATURES, pose_channel=channels.POSE, seconds=60.0):
     """Answers every frame on features_channel with NaN poses on pose_channel, as a stray process
     would: one with the frame's utime and source FEATURES, one finite with a utime nobody sent."""
     vislam = load()
@@ -270,16 +270,16 @@ def build_parser():
     i.add_argument("--count", type=int, default=None, help="corrupt: copies (10); no-imu: steps (100)")
     i.add_argument("--seed", type=int, default=1)
     i.add_argument("--offset-us", type=int, default=-HOUR_US, help="shift: utime offset, us (default -1 h)")
-    i.add_argument("--imu-channel", default="VISLAM_IMU")
-    i.add_argument("--features-channel", default="VISLAM_FEATURES")
+    i.add_argument("--imu-channel", default=channels.IMU)
+    i.add_argument("--features-channel", default=channels.FEATURES)
     n = sub.add_parser("info", help="steps of a log and the utime of a step")
     n.add_argument("input", metavar="IN.lcmlog")
     n.add_argument("--step", type=int, default=100)
-    n.add_argument("--imu-channel", default="VISLAM_IMU")
+    n.add_argument("--imu-channel", default=channels.IMU)
     f = sub.add_parser("foreign-poses", help="answer every frame with NaN poses (a stray process)")
     f.add_argument("--lcm-url", default=None)
-    f.add_argument("--features-channel", default="VISLAM_FEATURES")
-    f.add_argument("--pose-channel", default="VISLAM_POSE")
+    f.add_argument("--features-channel", default=channels.FEATURES)
+    f.add_argument("--pose-channel", default=channels.POSE)
     f.add_argument("--seconds", type=float, default=60.0, help="how long to answer (default 60)")
     return p
 

@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 
-from . import ToolError
+from . import ToolError, channels
 from .lcmtypes import load, load_lcm
 from .trajio import load_npz
 
@@ -27,11 +27,12 @@ def build_parser():
     p.add_argument("output", metavar="OUT.lcmlog", help="LCM event log to write (overwritten)")
     p.add_argument("--max-steps", type=int, default=None, metavar="N", help="convert at most N steps")
     p.add_argument("--start-step", type=int, default=0, metavar="K", help="first step to convert (default 0)")
-    p.add_argument("--channel-prefix", default="VISLAM_", help="channel name prefix (default VISLAM_)")
+    p.add_argument("--channel-prefix", default=channels.PREFIX,
+                   help=f"channel name prefix (default {channels.PREFIX})")
     return p
 
 
-def convert(input_path, output_path, start_step=0, max_steps=None, prefix="VISLAM_", err=None):
+def convert(input_path, output_path, start_step=0, max_steps=None, prefix=channels.PREFIX, err=None):
     """Write the log; returns a summary dict. Warnings go to err (default: sys.stderr)."""
     err = sys.stderr if err is None else err
     vislam = load()
@@ -70,7 +71,8 @@ def convert(input_path, output_path, start_step=0, max_steps=None, prefix="VISLA
     calib.baseline = float(data["b"])
     calib.cam_T_imu = [float(x) for x in np.asarray(data["cam_T_imu"], dtype=float).reshape(16)]
 
-    ch_calib, ch_imu, ch_feat = prefix + "CALIB", prefix + "IMU", prefix + "FEATURES"
+    ch_calib, ch_imu, ch_feat = (channels.with_prefix(c, prefix)
+                                 for c in (channels.CALIBRATION, channels.IMU, channels.FEATURES))
     zeros_i = [0] * cap
     zeros_d = [0.0] * cap
     events = observations = dropped = frames_clipped = 0
