@@ -72,21 +72,6 @@ cleanup() {
 }
 trap cleanup EXIT
 
-check() { # check DESCRIPTION COMMAND...
-  local what=$1
-  shift
-  if "$@"; then
-    echo "ok:   $what"
-  else
-    echo "FAIL: $what"
-    FAILS=$((FAILS + 1))
-  fi
-}
-value() { # value FILE KEY -> the value of "KEY value" in FILE
-  awk -v k="$2" '$1 == k { print $2; found = 1 } END { if (!found) print "missing" }' "$1"
-}
-eq() { [ "$1" = "$2" ] || { echo "      expected '$2', got '$1'"; return 1; }; }
-le() { [ "$1" -le "$2" ] 2>/dev/null || { echo "      expected $1 <= $2"; return 1; }; }
 
 # shellcheck source=support/vl_record.sh
 source "$(dirname "$0")/support/vl_record.sh"

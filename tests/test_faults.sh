@@ -79,24 +79,9 @@ cleanup() {
 }
 trap cleanup EXIT
 
-check() { # check DESCRIPTION COMMAND...
-  local what=$1
-  shift
-  if "$@"; then
-    echo "ok:   $what"
-  else
-    echo "FAIL: $what"
-    FAILS=$((FAILS + 1))
-  fi
-}
-value() { # value FILE KEY -> the value of "KEY value" in FILE
-  awk -v k="$2" '$1 == k { print $2; found = 1 } END { if (!found) print "missing" }' "$1"
-}
 json() { # json FILE KEY -> the value of "KEY": value in a flat JSON summary
   sed -n -E "s/^ *\"$2\": ([^,]*),?$/\1/p" "$1" | head -n 1
 }
-eq() { [ "$1" = "$2" ] || { echo "      expected '$2', got '$1'"; return 1; }; }
-ge() { [ "$1" -ge "$2" ] 2>/dev/null || { echo "      expected $1 >= $2"; return 1; }; }
 # at_least_95 GOT OF: GOT >= 95% of OF
 at_least_95() { [ $(($1 * 100)) -ge $(($2 * 95)) ] 2>/dev/null || { echo "      $1 of $2 (< 95%)"; return 1; }; }
 # shellcheck source=support/vl_record.sh

@@ -1,5 +1,5 @@
 # Shared by tests/test_daemon.sh and tests/test_faults.sh (sourced): recording the daemon's
-# outputs and synchronizing on them. Needs $URL, $OUT, $INSPECT (vl_log_inspect) and the PIDS array.
+# outputs and synchronizing on them, and the checks both make. Needs $URL, $OUT, $INSPECT (vl_log_inspect) and the PIDS array.
 #
 # Synchronization is on what the daemon publishes, never on guessed delays: a recording is read
 # back with vl_log_inspect while lcm-logger writes it. --flush-interval=1 makes each event reach
@@ -58,3 +58,21 @@ record_stop() {
   wait_exit "$LOGGER" 5
   WAIT_RC=$rc
 }
+
+# ---- checks: each prints ok/FAIL and counts failures in $FAILS -------------------------------------
+check() { # check DESCRIPTION COMMAND...
+  local what=$1
+  shift
+  if "$@"; then
+    echo "ok:   $what"
+  else
+    echo "FAIL: $what"
+    FAILS=$((FAILS + 1))
+  fi
+}
+value() { # value FILE KEY -> the value of "KEY value" in FILE
+  awk -v k="$2" '$1 == k { print $2; found = 1 } END { if (!found) print "missing" }' "$1"
+}
+eq() { [ "$1" = "$2" ] || { echo "      expected '$2', got '$1'"; return 1; }; }
+le() { [ "$1" -le "$2" ] 2>/dev/null || { echo "      expected $1 <= $2"; return 1; }; }
+ge() { [ "$1" -ge "$2" ] 2>/dev/null || { echo "      expected $1 >= $2"; return 1; }; }
