@@ -142,25 +142,27 @@ void vl_sim_integrate(double R[9], double p[3], const double u[6], double tau)
 
 /* ---------- configuration ---------- */
 
-void vl_sim_config_default(vl_sim_config_t *cfg)
+void vl_sim_kitti_calibration(vl_calibration_t *cal)
 {
     /* The real 0027 sequence's cam_T_imu (IMU x fwd, y left, z up -> camera x right, y down, z fwd). */
-    static const double cam_T_imu[16] = {-1.08863514e-03,
-                                         -9.99976347e-01,
-                                         6.78718180e-03,
-                                         1.14389871e+00,
-                                         -8.51207214e-03,
-                                         -6.77767115e-03,
-                                         -9.99940872e-01,
-                                         -3.12718471e-01,
-                                         9.99963177e-01,
-                                         -1.14634293e-03,
-                                         -8.50449310e-03,
-                                         7.26546045e-01,
-                                         0.0,
-                                         0.0,
-                                         0.0,
-                                         1.0};
+    /* clang-format off */
+    static const double cam_T_imu[16] = {
+        -1.08863514e-03, -9.99976347e-01,  6.78718180e-03,  1.14389871e+00,
+        -8.51207214e-03, -6.77767115e-03, -9.99940872e-01, -3.12718471e-01,
+         9.99963177e-01, -1.14634293e-03, -8.50449310e-03,  7.26546045e-01,
+         0.0,             0.0,             0.0,             1.0};
+    /* clang-format on */
+    memset(cal, 0, sizeof(*cal));
+    cal->fx = 707.0912;
+    cal->fy = 707.0912;
+    cal->cx = 601.8873;
+    cal->cy = 183.1104;
+    cal->baseline = 0.5371506;
+    memcpy(cal->cam_T_imu, cam_T_imu, sizeof(cam_T_imu));
+}
+
+void vl_sim_config_default(vl_sim_config_t *cfg)
+{
     int i;
     if (cfg == NULL) {
         return;
@@ -192,12 +194,7 @@ void vl_sim_config_default(vl_sim_config_t *cfg)
     cfg->height_min = -1.0;
     cfg->height_max = 6.0;
 
-    cfg->calibration.fx = 707.0912;
-    cfg->calibration.fy = 707.0912;
-    cfg->calibration.cx = 601.8873;
-    cfg->calibration.cy = 183.1104;
-    cfg->calibration.baseline = 0.5371506;
-    memcpy(cfg->calibration.cam_T_imu, cam_T_imu, sizeof(cam_T_imu));
+    vl_sim_kitti_calibration(&cfg->calibration);
     cfg->image_width = 1241.0;
     cfg->image_height = 376.0;
     cfg->border_margin = 8.0;

@@ -227,6 +227,9 @@ typedef struct {
     vl_sim_counts_t counts;
 } vl_sim_t;
 
+/** The KITTI 0027 stereo rig: its intrinsics, baseline and cam_T_imu (the simulator's default). */
+void vl_sim_kitti_calibration(vl_calibration_t *cal);
+
 /** Fills the defaults: a 300-step, 10 Hz drive with KITTI-like camera and the real data's noise. */
 void vl_sim_config_default(vl_sim_config_t *cfg);
 
