@@ -39,22 +39,11 @@ INSPECT=$3
 SRC=$4
 LOG="$SRC/data/sample.lcmlog"
 
-if [ -z "${VL_TEST_IN_NETNS:-}" ]; then
-  if ! command -v lcm-logger >/dev/null 2>&1; then
-    echo "SKIP: lcm-logger not found (Debian package liblcm-bin)"
-    exit $SKIP
-  fi
-  if ! unshare --net true 2>/dev/null; then
-    echo "SKIP: cannot create a private network namespace (unshare --net needs root or user namespaces);"
-    echo "      run this test as root, or in a container that allows it"
-    exit $SKIP
-  fi
-  exec unshare --net env VL_TEST_IN_NETNS=1 bash "$0" "$@"
-fi
+# shellcheck source=support/vl_record.sh
+source "$(dirname "$0")/support/vl_record.sh"
+enter_private_netns "$0" "$@"
 
 # ---- inside the namespace ---------------------------------------------------------------------
-ip link set lo up multicast on || { echo "SKIP: cannot bring up lo in the namespace"; exit $SKIP; }
-ip route add 224.0.0.0/4 dev lo || { echo "SKIP: cannot add a multicast route in the namespace"; exit $SKIP; }
 URL='udpm://239.255.76.67:7667?ttl=0'
 OUT=$(mktemp -d /tmp/vislam_test_daemon.XXXXXX)
 FAILS=0
@@ -73,8 +62,6 @@ cleanup() {
 trap cleanup EXIT
 
 
-# shellcheck source=support/vl_record.sh
-source "$(dirname "$0")/support/vl_record.sh"
 
 # start_recording NAME CHANNELS ERR -- COMMAND...: lcm-logger into $OUT/NAME.lcmlog, then the daemon
 # COMMAND with its stderr into ERR.

@@ -41,26 +41,15 @@ LOG="$SRC/data/sample.lcmlog"
 FAULTS="$SRC/tools/faults/vislam-faults"
 export VISLAM_PYTHON="${VISLAM_PYTHON:-${VENV_DIR:-$SRC/.venv}/bin/python}"
 
-if [ -z "${VL_TEST_IN_NETNS:-}" ]; then
-  if ! command -v lcm-logger >/dev/null 2>&1; then
-    echo "SKIP: lcm-logger not found (Debian package liblcm-bin)"
-    exit $SKIP
-  fi
-  if ! "$VISLAM_PYTHON" -c 'import lcm, numpy' 2>/dev/null; then
-    echo "SKIP: no Python with the lcm module at $VISLAM_PYTHON (tools/test.sh creates .venv; or set VISLAM_PYTHON)"
-    exit $SKIP
-  fi
-  if ! unshare --net true 2>/dev/null; then
-    echo "SKIP: cannot create a private network namespace (unshare --net needs root or user namespaces);"
-    echo "      run this test as root, or in a container that allows it"
-    exit $SKIP
-  fi
-  exec unshare --net env VL_TEST_IN_NETNS=1 bash "$0" "$@"
+if [ -z "${VL_TEST_IN_NETNS:-}" ] && ! "$VISLAM_PYTHON" -c 'import lcm, numpy' 2>/dev/null; then
+  echo "SKIP: no Python with the lcm module at $VISLAM_PYTHON (tools/test.sh creates .venv; or set VISLAM_PYTHON)"
+  exit $SKIP
 fi
+# shellcheck source=support/vl_record.sh
+source "$(dirname "$0")/support/vl_record.sh"
+enter_private_netns "$0" "$@"
 
 # ---- inside the namespace ---------------------------------------------------------------------
-ip link set lo up multicast on || { echo "SKIP: cannot bring up lo in the namespace"; exit $SKIP; }
-ip route add 224.0.0.0/4 dev lo || { echo "SKIP: cannot add a multicast route in the namespace"; exit $SKIP; }
 URL='udpm://239.255.76.67:7667?ttl=0'
 OUT=$(mktemp -d /tmp/vislam_test_faults.XXXXXX)
 FAILS=0
@@ -84,8 +73,6 @@ json() { # json FILE KEY -> the value of "KEY": value in a flat JSON summary
 }
 # at_least_95 GOT OF: GOT >= 95% of OF
 at_least_95() { [ $(($1 * 100)) -ge $(($2 * 95)) ] 2>/dev/null || { echo "      $1 of $2 (< 95%)"; return 1; }; }
-# shellcheck source=support/vl_record.sh
-source "$(dirname "$0")/support/vl_record.sh" # record_start, wait_recorded, wait_exit, record_stop
 utime_of_tum_line() { awk '{ split($1, t, "."); printf "%d%06d\n", t[1], t[2] }'; }
 crashed() { [ "$1" -ge 128 ] && [ "$1" -ne 124 ]; } # killed by a signal (SIGSEGV 139, SIGABRT 134)
 

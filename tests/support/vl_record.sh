@@ -1,10 +1,30 @@
-# Shared by tests/test_daemon.sh and tests/test_faults.sh (sourced): recording the daemon's
-# outputs and synchronizing on them, and the checks both make. Needs $URL, $OUT, $INSPECT (vl_log_inspect) and the PIDS array.
+# Shared by tests/test_daemon.sh and tests/test_faults.sh (sourced): entering a private network
+# namespace, recording the daemon's outputs and synchronizing on them, and the checks both make. Needs $URL, $OUT, $INSPECT (vl_log_inspect) and the PIDS array.
 #
 # Synchronization is on what the daemon publishes, never on guessed delays: a recording is read
 # back with vl_log_inspect while lcm-logger writes it. --flush-interval=1 makes each event reach
 # the file as it is written (the default flushes only when an event comes 100 ms after the last
 # flush, so a final status could sit in the logger's buffer until it exits).
+
+# enter_private_netns SCRIPT ARGS...: outside a namespace, checks what the test needs and runs
+# SCRIPT again inside `unshare --net` (exit 77, CTest's skip, when it cannot); inside, brings up a
+# multicast loopback for LCM. Returns only inside the namespace.
+enter_private_netns() {
+  if [ -z "${VL_TEST_IN_NETNS:-}" ]; then
+    if ! command -v lcm-logger >/dev/null 2>&1; then
+      echo "SKIP: lcm-logger not found (Debian package liblcm-bin)"
+      exit 77
+    fi
+    if ! unshare --net true 2>/dev/null; then
+      echo "SKIP: cannot create a private network namespace (unshare --net needs root or user namespaces);"
+      echo "      run this test as root, or in a container that allows it"
+      exit 77
+    fi
+    exec unshare --net env VL_TEST_IN_NETNS=1 bash "$@"
+  fi
+  ip link set lo up multicast on || { echo "SKIP: cannot bring up lo in the namespace"; exit 77; }
+  ip route add 224.0.0.0/4 dev lo || { echo "SKIP: cannot add a multicast route in the namespace"; exit 77; }
+}
 
 # record_start NAME CHANNELS: lcm-logger into $OUT/NAME.lcmlog; its pid in $LOGGER.
 record_start() {

@@ -123,6 +123,16 @@ def build_parser():
     return parser
 
 
+def _write_json(path, res):
+    """Write the results as JSON; a write failure is a ToolError."""
+    try:
+        with open(path, "w") as f:
+            json.dump(res, f, indent=2)
+            f.write("\n")
+    except OSError as exc:
+        raise ToolError(f"cannot write {path}: {exc.strerror}") from exc
+
+
 def _associated_ground_truth(est, args):
     """The ground truth of args.gt and the estimate/GT index pairs; fewer than 3 pairs is a ToolError."""
     calib = load_calibration(args.calib) if args.calib else None
@@ -179,12 +189,7 @@ def cmd_ate(args):
         print(f"RPE  delta {r['delta']:>3} steps: trans rmse {r['trans_rmse']:.4f} m, "
               f"rot rmse {r['rot_rmse_deg']:.4f} deg ({r['pairs']} pairs)")
     if args.json:
-        try:
-            with open(args.json, "w") as f:
-                json.dump(res, f, indent=2)
-                f.write("\n")
-        except OSError as exc:
-            raise ToolError(f"cannot write {args.json}: {exc.strerror}") from exc
+        _write_json(args.json, res)
     return 0
 
 
@@ -259,12 +264,7 @@ def cmd_consistency(args):
           f"(expected 3); over the chi2 95 % bound {CHI2_3DOF_95:.2f} in {100 * res['nees_over_chi2_95']:.1f} % "
           "of the frames (expected 5 %)")
     if args.json:
-        try:
-            with open(args.json, "w") as f:
-                json.dump(res, f, indent=2)
-                f.write("\n")
-        except OSError as exc:
-            raise ToolError(f"cannot write {args.json}: {exc.strerror}") from exc
+        _write_json(args.json, res)
     if args.out:
         from .plotting import plot_consistency
         title = args.title
