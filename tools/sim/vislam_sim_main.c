@@ -40,6 +40,9 @@ static void usage(FILE *f)
                "  --angular-noise RPS     angular velocity std [0.05]\n"
                "  --linear-offset X,Y,Z   constant linear velocity offset, m/s [0,0,0]\n"
                "  --angular-offset X,Y,Z  constant angular velocity offset, rad/s [0.005,0.005,0.005]\n"
+               "  --interval-velocities   the velocity is constant from one step to the next (each\n"
+               "                          sample holds); default: it varies smoothly and each sample\n"
+               "                          is the instantaneous velocity at its step\n"
                "  --speed MPS             mean forward speed [8]\n"
                "  --points-per-meter N    world point density along the path [2.5]\n"
                "  --max-observations N    observations per frame, 1..256 [256]\n"
@@ -182,6 +185,9 @@ int main(int argc, char **argv)
             quiet = 1;
             continue;
         } else if (strcmp(a, "--realistic") == 0) {
+            continue;
+        } else if (strcmp(a, "--interval-velocities") == 0) {
+            cfg.interval_velocities = 1;
             continue;
         }
         if (v == NULL) {

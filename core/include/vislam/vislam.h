@@ -323,6 +323,7 @@ typedef struct {
     double p[3];              /**< m */
     double held_linear[3];    /**< raw last linear velocity sample, m/s */
     double held_angular[3];   /**< raw last angular velocity sample, rad/s */
+    int held_trusted;         /**< the held sample may carry the motion on (not after a divergence it led to) */
     double offset_linear[3];  /**< m/s */
     double offset_angular[3]; /**< rad/s */
 

@@ -69,6 +69,11 @@ typedef enum {
       "true: the [noise] values linear_velocity, angular_velocity and pixel are priors, adapted " \
       "online from the filter's own corrections and residuals (within a factor of 100 of the " \
       "configured value).") \
+    X("estimator", "interpolate_velocities", interpolate_velocities, BOOL, 1, 0, 1, 0, "", \
+      "true: each velocity sample is the instantaneous velocity at its time, and between two " \
+      "samples the velocity is taken as linear (trapezoidal integration; IMUs, wheel odometry, " \
+      "INS). false: a sample holds until the next one (velocities that are means over the " \
+      "interval that follows them, e.g. differences of consecutive poses).") \
     X("estimator", "max_propagation_dt", max_propagation_dt, DOUBLE, 0.5, 0.0, DBL_MAX, 1, "s", \
       "A gap between inputs longer than this is counted (time_gaps) and still propagated.") \
     /* 64 observations (192 rows) keep an update at a full window of 128 under 2 ms at p99.9 \
