@@ -1,0 +1,35 @@
+#include "vl_cli.h"
+
+#include <math.h>
+#include <stdlib.h>
+
+#include "vl_version.h"
+
+const char *vl_cli_version(void)
+{
+    return VL_VERSION_GIT[0] != '\0' ? VL_VERSION_PROJECT " (git " VL_VERSION_GIT ")" : VL_VERSION_PROJECT;
+}
+
+int vl_cli_print_version(FILE *f, const char *program)
+{
+    fprintf(f, "%s %s\n", program, vl_cli_version());
+    return fflush(f) != 0 || ferror(f) ? -1 : 0;
+}
+
+void vl_cli_format_double(char *buf, size_t len, double v)
+{
+    if (!isfinite(v)) {
+        snprintf(buf, len, "%g", v);
+        return;
+    }
+    /* 17 digits always read back. Fewer than 15 never need trying: a shorter text that reads back
+       lies within half an ulp (1.1e-16 relative) of v, so rounding v to 15 digits gives that same
+       text (%g drops the trailing zeros). */
+    for (int digits = 15; digits < 17; ++digits) {
+        snprintf(buf, len, "%.*g", digits, v);
+        if (strtod(buf, NULL) == v) {
+            return;
+        }
+    }
+    snprintf(buf, len, "%.17g", v);
+}
