@@ -1,5 +1,6 @@
 #include "vl_cli.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 
@@ -22,10 +23,10 @@ void vl_cli_format_double(char *buf, size_t len, double v)
         snprintf(buf, len, "%g", v);
         return;
     }
-    /* 17 digits always read back. Fewer than 15 never need trying: a shorter text that reads back
-       lies within half an ulp (1.1e-16 relative) of v, so rounding v to 15 digits gives that same
-       text (%g drops the trailing zeros). */
-    for (int digits = 15; digits < 17; ++digits) {
+    /* 17 digits always read back. For a normal number fewer than 15 never need trying: a shorter
+       text that reads back lies within half an ulp (1.1e-16 relative) of v, so rounding v to 15
+       digits gives that same text (%g drops the trailing zeros). Subnormals carry fewer digits. */
+    for (int digits = fabs(v) >= DBL_MIN ? 15 : 1; digits < 17; ++digits) {
         snprintf(buf, len, "%.*g", digits, v);
         if (strtod(buf, NULL) == v) {
             return;
