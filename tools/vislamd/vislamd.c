@@ -19,6 +19,9 @@
  * Between the messages and the core sits the session (vl_session): the
  * calibration policy, counters, health bits and core logger that vislam-run
  * uses too, so a lockstep replay gives the same trajectory as the offline run.
+ *
+ * Under systemd (Type=notify) it reports readiness, feeds the watchdog from this loop while it is
+ * healthy, and publishes a status line (vl_notify); run by hand, none of that happens.
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -186,7 +189,7 @@ static void usage(FILE *f)
             "\n"
             "As a systemd Type=notify service (NOTIFY_SOCKET set) it reports READY=1 once subscribed,\n"
             "WATCHDOG=1 from the estimation loop every half WATCHDOG_USEC while LCM delivers, a STATUS=\n"
-            "line once a second and STOPPING=1 on SIGINT/SIGTERM; see tools/vislamd/vislamd.service.\n"
+            "line once a second and STOPPING=1 on SIGINT/SIGTERM (the unit: share/vislam/vislamd.service).\n"
             "\n"
             "Exit status: 0 stopped by SIGINT/SIGTERM with every output flushed, 1 run-time failure\n"
             "(LCM, trajectory file), 2 usage or configuration error.\n",
