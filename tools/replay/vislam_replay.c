@@ -87,7 +87,7 @@ typedef struct {
 
 typedef struct {
     char name[CHANNEL_MAX];
-    uint64_t sent;
+    uint64_t events; /* sent, or skipped */
 } channel_count_t;
 
 /* An input this replay published, which a pose may answer. */
@@ -354,7 +354,7 @@ static int count_channel(channel_count_t *counts, int *num, const char *channel)
 {
     for (int i = 0; i < *num; ++i) {
         if (strcmp(counts[i].name, channel) == 0) {
-            counts[i].sent++;
+            counts[i].events++;
             return 0;
         }
     }
@@ -363,7 +363,7 @@ static int count_channel(channel_count_t *counts, int *num, const char *channel)
     }
     channel_count_t *c = &counts[(*num)++];
     snprintf(c->name, sizeof(c->name), "%s", channel);
-    c->sent = 1;
+    c->events = 1;
     return 0;
 }
 
@@ -572,13 +572,13 @@ static void print_summary(const replay_t *r, double wall_s, int interrupted)
             r->opt.log_path, r->sent, wall_s, log_s, wall_s > 0 ? log_s / wall_s : 0.0,
             interrupted ? " - interrupted" : "");
     for (int i = 0; i < r->num_channels; ++i) {
-        fprintf(stderr, "  %-24s %8" PRIu64 "\n", r->channels[i].name, r->channels[i].sent);
+        fprintf(stderr, "  %-24s %8" PRIu64 "\n", r->channels[i].name, r->channels[i].events);
     }
     if (r->filtered != 0) {
         fprintf(stderr, "  skipped %" PRIu64 " events on other channels (%s):", r->filtered,
                 r->opt.num_filter > 0 ? "not in --channels" : "not inputs; --all-channels replays them");
         for (int i = 0; i < r->num_skipped; ++i) {
-            fprintf(stderr, " %s %" PRIu64, r->skipped[i].name, r->skipped[i].sent);
+            fprintf(stderr, " %s %" PRIu64, r->skipped[i].name, r->skipped[i].events);
         }
         fputc('\n', stderr);
     }
@@ -613,11 +613,11 @@ static int write_json(const replay_t *r, double wall_s, int interrupted)
     }
     fprintf(f, "{\n  \"messages_sent\": %" PRIu64 ",\n  \"channels\": {", r->sent);
     for (int i = 0; i < r->num_channels; ++i) {
-        fprintf(f, "%s\n    \"%s\": %" PRIu64, i == 0 ? "" : ",", r->channels[i].name, r->channels[i].sent);
+        fprintf(f, "%s\n    \"%s\": %" PRIu64, i == 0 ? "" : ",", r->channels[i].name, r->channels[i].events);
     }
     fprintf(f, "\n  },\n  \"events_skipped\": %" PRIu64 ",\n  \"channels_skipped\": {", r->filtered);
     for (int i = 0; i < r->num_skipped; ++i) {
-        fprintf(f, "%s\n    \"%s\": %" PRIu64, i == 0 ? "" : ",", r->skipped[i].name, r->skipped[i].sent);
+        fprintf(f, "%s\n    \"%s\": %" PRIu64, i == 0 ? "" : ",", r->skipped[i].name, r->skipped[i].events);
     }
     fprintf(f, "\n  },\n  \"publish_errors\": %" PRIu64 ",\n", r->publish_errors);
     fprintf(f,
