@@ -19,6 +19,9 @@ int vl_cli_print_version(FILE *f, const char *program)
 
 void vl_cli_format_double(char *buf, size_t len, double v)
 {
+    if (buf == NULL || len == 0) {
+        return;
+    }
     if (!isfinite(v)) {
         snprintf(buf, len, "%g", v);
         return;

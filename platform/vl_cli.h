@@ -33,7 +33,7 @@ int vl_cli_print_version(FILE *f, const char *program);
 /**
  * v with the fewest significant digits (at most 17) that strtod reads back to the same double,
  * e.g. 0.05 as "0.05", not "0.050000000000000003"; infinities and NaN as printf spells them.
- * @param buf output, at least VL_CLI_DOUBLE_MAX bytes for the whole text
+ * @param buf output, at least VL_CLI_DOUBLE_MAX bytes for the whole text (NULL or len 0: nothing written)
  */
 void vl_cli_format_double(char *buf, size_t len, double v);
 

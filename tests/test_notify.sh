@@ -4,7 +4,7 @@
 #   tests/test_notify.sh BIN_DIR NOTIFY_LISTEN SOURCE_DIR
 #
 # tests/support/vl_notify_listen plays the service manager: it binds the datagram socket that
-# NOTIFY_SOCKET names and records what arrives. vislamd runs with WATCHDOG_USEC=1 s in a private
+# NOTIFY_SOCKET names and records what arrives. vislamd runs with WATCHDOG_USEC=2 s in a private
 # network namespace (as tests/test_daemon.sh), data/sample.lcmlog is replayed into it in
 # lockstep, then it gets SIGTERM. Checks: READY=1 once, before any WATCHDOG=1; WATCHDOG=1 at
 # least every WATCHDOG_USEC (what systemd enforces) and none after STOPPING=1; a STATUS= line
@@ -43,7 +43,7 @@ cleanup() {
 }
 trap cleanup EXIT
 START=$SECONDS
-WATCHDOG_MS=1000
+WATCHDOG_MS=2000
 
 "$LISTEN" "$OUT/notify.sock" 30 >"$OUT/notify.txt" &
 LISTENER=$!
@@ -57,8 +57,8 @@ NOTIFY_SOCKET="$OUT/notify.sock" WATCHDOG_USEC=$((WATCHDOG_MS * 1000)) \
   "$BIN/vislamd" --lcm-url "$URL" --no-mlock --quiet 2>"$OUT/daemon.err" &
 DAEMON=$!
 PIDS+=("$DAEMON")
-"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 10 --wait-for VISLAM_STATUS --timeout-ms 5000 \
-  --quiet 2>"$OUT/replay.err"
+"$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 10 --timeout-ms 5000 \
+  --wait-for VISLAM_STATUS --wait-timeout-ms 20000 --quiet 2>"$OUT/replay.err"
 check "replay into the notifying daemon: every frame's pose came back" eq $? 0
 # The STATUS= line follows the once-a-second status: wait (bounded) until it has all 200 frames.
 for _ in $(seq 60); do
