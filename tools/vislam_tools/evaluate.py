@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 
-from . import ToolError
+from . import ToolError, cli
 from .geometry import integrate_dead_reckoning, se3_inv
 from .metrics import CHI2_3DOF_95, associate, ate, consistency, rpe
 from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, read_ground_truth, read_ply,
@@ -74,6 +74,7 @@ def build_parser():
     parser = argparse.ArgumentParser(
         prog="evaluate", description=__doc__.splitlines()[0],
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
+    cli.add_version(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -301,4 +302,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    cli.run(main)

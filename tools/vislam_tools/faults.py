@@ -33,7 +33,7 @@ import struct
 import sys
 import time
 
-from . import ToolError, channels
+from . import ToolError, channels, cli
 from .lcmtypes import load, load_lcm
 
 SYNC = 0xEDA1DA01
@@ -261,6 +261,7 @@ def foreign_poses(lcm_url=None, features_channel=channels.FEATURES, pose_channel
 def build_parser():
     p = argparse.ArgumentParser(prog="vislam-faults", description=__doc__.split("\n")[0],
                                 epilog="Faults: " + ", ".join(LOG_FAULTS + CONTENT_FAULTS))
+    cli.add_version(p)
     sub = p.add_subparsers(dest="command", required=True)
     i = sub.add_parser("inject", help="write a faulty copy of a log")
     i.add_argument("input", metavar="IN.lcmlog")
@@ -308,4 +309,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    cli.run(main)
