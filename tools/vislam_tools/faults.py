@@ -249,6 +249,8 @@ def foreign_poses(lcm_url=None, features_channel=channels.FEATURES, pose_channel
         sent[0] += 2
 
     lc.subscribe(features_channel, on_frame)
+    # A test starts the replay once this line is out: frames sent before the subscription are lost.
+    print(f"foreign-poses: listening on {features_channel}", flush=True)
     deadline = time.monotonic() + seconds
     try:
         while time.monotonic() < deadline:
