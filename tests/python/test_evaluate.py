@@ -1,6 +1,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -80,6 +81,67 @@ def test_ate_with_kitti_ground_truth_and_npz_calibration(tmp_path):
     res = json.loads(out.read_text())
     assert res["ate"]["rmse"] < 1e-6
     assert res["rpe"][0]["rot_rmse_deg"] < 1e-4
+
+
+def kitti_case(tmp_path, n=30, fmt="{:.12g}"):
+    """An IMU trajectory, its KITTI camera poses printed with fmt, the npz calibration, the TUM estimate."""
+    times, imu = drive(n=n, noise=0.01, seed=3)
+    cam_T_imu = make_pose(so3_exp([1.2, -1.2, 1.2]), [1.1, -0.3, 0.7])
+    cam = cam_T_imu @ imu @ se3_inv(cam_T_imu)
+    kitti = tmp_path / "gt.txt"
+    kitti.write_text("".join(" ".join(fmt.format(x) for x in [t - times[0]] + list(p[:3, :4].ravel())) + "\n"
+                             for t, p in zip(times, cam)))
+    npz = tmp_path / "d.npz"
+    np.savez(npz, time_stamps=times[None, :], cam_T_imu=cam_T_imu, K=np.eye(3), b=np.float64(0.5))
+    est = tmp_path / "est.tum"
+    write_tum(est, times, imu)
+    return kitti, npz, est
+
+
+def test_rpe_rotation_of_rounded_kitti_truth_is_not_inflated(tmp_path):
+    # KITTI prints 7 digits, so its rotations are orthonormal to about 1e-7 only: arccos of the
+    # one-step error's trace, taken as it is, read 0.0075 deg for this perfect estimate.
+    kitti, npz, est = kitti_case(tmp_path, fmt="{:.6e}")
+    out = tmp_path / "ate.json"
+    assert main(["ate", "--estimate", str(est), "--gt", str(kitti), "--calib", str(npz), "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["rpe"][0]["delta"] == 1 and res["rpe"][0]["rot_rmse_deg"] < 1e-3
+    assert res["ate"]["rmse"] < 1e-5
+
+
+def _evo_rmse(tool, args, home):
+    """Run an evo command line tool from this Python's environment and return the rmse it prints."""
+    exe = Path(sys.executable).parent / tool
+    if not exe.is_file():
+        pytest.skip(f"{exe} not installed (pip install -r tools/requirements.txt)")
+    res = subprocess.run([str(exe)] + args, capture_output=True, text=True, timeout=120,
+                         env={"HOME": str(home), "MPLBACKEND": "Agg", "PATH": "/usr/bin:/bin"})
+    assert res.returncode == 0, res.stdout + res.stderr
+    rows = dict(line.split() for line in res.stdout.splitlines() if len(line.split()) == 2)
+    return float(rows["rmse"])
+
+
+def test_gt_tum_and_evo_command_line_agree_with_evaluate(tmp_path, capsys):
+    kitti, npz, _ = kitti_case(tmp_path, n=40)
+    times, noisy = drive(n=40, noise=0.03, seed=11)
+    est = tmp_path / "noisy.tum"
+    write_tum(est, times, make_pose(so3_exp([0.1, -0.2, 0.9]), [4, 2, -1]) @ noisy)
+    gt_tum = tmp_path / "gt.tum"
+    assert main(["gt", "--gt", str(kitti), "--calib", str(npz), "--out", str(gt_tum)]) == 0
+    assert "40 poses" in capsys.readouterr().out
+    out = tmp_path / "ate.json"
+    assert main(["ate", "--estimate", str(est), "--gt", str(kitti), "--calib", str(npz), "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    home = tmp_path / "home"  # evo's command line tools keep their settings in ~/.evo
+    home.mkdir()
+    args = ["tum", str(gt_tum), str(est), "-a"]
+    assert _evo_rmse("evo_ape", args, home) == pytest.approx(res["ate"]["rmse"], abs=1e-6)
+    for r in res["rpe"]:
+        rpe_args = args + ["--delta", str(r["delta"]), "--all_pairs"]
+        assert _evo_rmse("evo_rpe", rpe_args, home) == pytest.approx(r["trans_rmse"], abs=1e-6)
+        assert _evo_rmse("evo_rpe", rpe_args + ["-r", "angle_deg"], home) == pytest.approx(r["rot_rmse_deg"],
+                                                                                          abs=1e-5)
+    assert res["ate"]["rmse"] > 0.01  # a case where a wrong frame or pairing would show
 
 
 def test_ate_with_no_overlap_is_a_clear_error(files, tmp_path, capsys):
