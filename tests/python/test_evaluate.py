@@ -1,12 +1,11 @@
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import REPO
+from conftest import REPO, evo_rmse
 from vislam_tools.evaluate import main
 from vislam_tools.geometry import make_pose, se3_exp, se3_inv, so3_exp
 from vislam_tools.trajio import read_tum, write_tum
@@ -109,18 +108,6 @@ def test_rpe_rotation_of_rounded_kitti_truth_is_not_inflated(tmp_path):
     assert res["ate"]["rmse"] < 1e-5
 
 
-def _evo_rmse(tool, args, home):
-    """Run an evo command line tool from this Python's environment and return the rmse it prints."""
-    exe = Path(sys.executable).parent / tool
-    if not exe.is_file():
-        pytest.skip(f"{exe} not installed (pip install -r tools/requirements.txt)")
-    res = subprocess.run([str(exe)] + args, capture_output=True, text=True, timeout=120,
-                         env={"HOME": str(home), "MPLBACKEND": "Agg", "PATH": "/usr/bin:/bin"})
-    assert res.returncode == 0, res.stdout + res.stderr
-    rows = dict(line.split() for line in res.stdout.splitlines() if len(line.split()) == 2)
-    return float(rows["rmse"])
-
-
 def test_gt_tum_and_evo_command_line_agree_with_evaluate(tmp_path, capsys):
     kitti, npz, _ = kitti_case(tmp_path, n=40)
     times, noisy = drive(n=40, noise=0.03, seed=11)
@@ -135,11 +122,11 @@ def test_gt_tum_and_evo_command_line_agree_with_evaluate(tmp_path, capsys):
     home = tmp_path / "home"  # evo's command line tools keep their settings in ~/.evo
     home.mkdir()
     args = ["tum", str(gt_tum), str(est), "-a"]
-    assert _evo_rmse("evo_ape", args, home) == pytest.approx(res["ate"]["rmse"], abs=1e-6)
+    assert evo_rmse("evo_ape", args, home) == pytest.approx(res["ate"]["rmse"], abs=1e-6)
     for r in res["rpe"]:
         rpe_args = args + ["--delta", str(r["delta"]), "--all_pairs"]
-        assert _evo_rmse("evo_rpe", rpe_args, home) == pytest.approx(r["trans_rmse"], abs=1e-6)
-        assert _evo_rmse("evo_rpe", rpe_args + ["-r", "angle_deg"], home) == pytest.approx(r["rot_rmse_deg"],
+        assert evo_rmse("evo_rpe", rpe_args, home) == pytest.approx(r["trans_rmse"], abs=1e-6)
+        assert evo_rmse("evo_rpe", rpe_args + ["-r", "angle_deg"], home) == pytest.approx(r["rot_rmse_deg"],
                                                                                           abs=1e-5)
     assert res["ate"]["rmse"] > 0.01  # a case where a wrong frame or pairing would show
 
