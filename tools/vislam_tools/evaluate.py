@@ -57,7 +57,7 @@ honest test of a filter started at the truth.
 """
 
 
-def _add_gt_args(p, required, scale=True):
+def _add_gt_args(p, required, scale=True, pairing=True):
     p.add_argument("--gt", required=required, metavar="GT",
                    help="ground truth: KITTI odometry poses (.txt) or TUM (e.g. the simulator's truth)")
     p.add_argument("--gt-format", choices=("auto", "tum", "kitti"), default="auto",
@@ -65,6 +65,8 @@ def _add_gt_args(p, required, scale=True):
     p.add_argument("--calib", metavar="DATA.npz|LOG.lcmlog",
                    help="cam_T_imu and step times: a seed dataset or an LCM log with a *CALIB event "
                         "(needed for KITTI ground truth)")
+    if not pairing:
+        return
     p.add_argument("--associate", choices=("auto", "time", "relative", "index"), default="auto",
                    help="pair estimate and GT poses by absolute time, by time since each one's first "
                         "pose, or by line index; auto = time, else relative (default auto)")
@@ -121,17 +123,12 @@ def build_parser():
     p.add_argument("--dpi", type=int, default=120)
 
     p = sub.add_parser("gt", help="write the ground truth as TUM, world-from-IMU at the step times (for evo)",
-                       description="The ground truth as `evaluate ate` reads it (KITTI camera poses "
-                       "converted to IMU poses through cam_T_imu, in the frame of the IMU at step 0, "
-                       "stamped with the dataset's step times), written as TUM so that evo_ape, evo_rpe "
+                       description="The ground truth as `evaluate ate` reads it (KITTI camera poses\n"
+                       "converted to IMU poses through cam_T_imu, in the frame of the IMU at step 0,\n"
+                       "stamped with the dataset's step times), written as TUM so that evo_ape, evo_rpe\n"
                        "and evo_traj compare it with a vislam trajectory directly.",
                        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
-    p.add_argument("--gt", required=True, metavar="GT",
-                   help="ground truth: KITTI odometry poses (.txt) or TUM")
-    p.add_argument("--gt-format", choices=("auto", "tum", "kitti"), default="auto",
-                   help="ground-truth format (default: by the count of numbers per line)")
-    p.add_argument("--calib", metavar="DATA.npz|LOG.lcmlog",
-                   help="cam_T_imu and step times: a seed dataset or an LCM log (needed for KITTI)")
+    _add_gt_args(p, required=True, pairing=False)
     p.add_argument("--out", required=True, metavar="GT.tum")
 
     p = sub.add_parser("deadreckon", help="integrate a dataset's velocities into a TUM trajectory",

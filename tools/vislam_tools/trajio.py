@@ -102,7 +102,7 @@ def read_kitti(path):
         raise ToolError(f"{path}: no poses")
     poses = np.array(poses)
     # The files print 7 digits, so a rotation is orthonormal only to about 1e-7, and the angle of a
-    # one-step relative rotation (arccos of a trace near 3) would be off by about 0.01 deg.
+    # one-step relative rotation (arccos of a trace near 3) would be off by up to about 0.01 deg.
     poses[:, :3, :3] = nearest_rotation(poses[:, :3, :3])
     return (np.array(times) if ncols == 13 else None), poses
 
