@@ -680,7 +680,6 @@ void test_vl_msg_from_pose_fills_both_messages(void)
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.position, m.position, 3);
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.covariance, m.covariance, 36);
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.linear_velocity, m.linear_velocity, 3);
-
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.angular_velocity, m.angular_velocity, 3);
 
     bot_core_pose_t b;

@@ -33,7 +33,7 @@ Examples:
   evaluate gt --gt ../shared/data/gt/kitti_odometry_07.txt --calib ../shared/data/0027.npz --out gt.tum
   evo_ape tum gt.tum slam.tum -a                                  # the same ATE as evaluate ate
   evo_rpe tum gt.tum slam.tum -a --delta 10 --all_pairs [-r angle_deg]   # its RPE over 10 steps
-  evo_traj tum slam.tum --ref gt.tum -a --plot
+  evo_traj tum slam.tum --ref gt.tum -a --plot_mode xy --save_plot traj.png
   evaluate plot --estimate slam.tum --dead-reckoning dr.tum --map map.ply --out fig.png
   evaluate animate --estimate slam.tum --map map.ply --out run.gif
   evaluate consistency --estimate slam.tum --covariance slam.cov --gt ../shared/data/gt/kitti_odometry_07.txt \\

@@ -7,7 +7,8 @@ from typing import Optional
 import numpy as np
 
 from . import ToolError
-from .geometry import make_pose, nearest_rotation, quat_to_rot, quat_xyzw_to_wxyz, rot_to_quat, quat_wxyz_to_xyzw, se3_inv
+from .geometry import (make_pose, nearest_rotation, quat_to_rot, quat_wxyz_to_xyzw, quat_xyzw_to_wxyz, rot_to_quat,
+                       se3_inv)
 
 
 @dataclass
