@@ -131,6 +131,17 @@ def test_gt_tum_and_evo_command_line_agree_with_evaluate(tmp_path, capsys):
     assert res["ate"]["rmse"] > 0.01  # a case where a wrong frame or pairing would show
 
 
+def test_importing_the_evo_based_metrics_has_no_side_effects(tmp_path):
+    # evo's command line tools write ~/.evo; the library modules used here must not, and must not
+    # pull in matplotlib (a display backend) either: the tools run on headless machines.
+    code = ("import sys; import vislam_tools.metrics, vislam_tools.trajio; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('matplotlib', 'pandas', 'seaborn')))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         env={"HOME": str(tmp_path), "PYTHONPATH": str(REPO / "tools"), "PATH": "/usr/bin:/bin"})
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]" and list(tmp_path.iterdir()) == []
+
+
 def test_ate_with_no_overlap_is_a_clear_error(files, tmp_path, capsys):
     other = tmp_path / "other.tum"
     write_tum(other, [1.0, 2.0, 3.0], np.stack([np.eye(4)] * 3))
