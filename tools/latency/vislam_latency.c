@@ -734,7 +734,7 @@ static pid_t start_cyclictest(const char *out, int cpus, int priority)
     snprintf(threads, sizeof(threads), "-t%d", cpus);
     snprintf(prio, sizeof(prio), "-p%d", priority > 0 ? priority + 1 : 1);
     snprintf(affinity, sizeof(affinity), "-a0-%d", cpus - 1);
-    const char *argv[] = {bin, "-q", "-m", "-i1000", threads, affinity, prio, NULL};
+    const char *argv[] = {bin, "-q", "-m", "-i1000", "-d0", threads, affinity, prio, NULL};
     return spawn((char *const *)argv, out, -1, 0);
 }
 
@@ -1175,7 +1175,10 @@ int main(int argc, char **argv)
     if (opt.e2e && (e2e.failed || e2e.returned < e2e.expected || e2e.expected == 0)) {
         rc = EXIT_INCOMPLETE;
     }
-    if (made_dir) {
+    const int helper_failed = (opt.e2e && e2e.failed) || (opt.callgrind && res.callgrind <= 0);
+    if (made_dir && helper_failed) {
+        fprintf(stderr, "vislam-latency: the helpers' logs are kept in %s\n", dir);
+    } else if (made_dir) {
         remove_work_dir(dir);
     }
     free(steps);
