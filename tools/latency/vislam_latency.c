@@ -478,17 +478,15 @@ static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double
 
 /* ---- child processes ---- */
 
+/* In a child before exec: its CPU and priority; a refusal is a warning in the child's log. */
 static void pin_self(int cpu, int priority)
 {
-    cpu_set_t set;
-    CPU_ZERO(&set);
-    CPU_SET(cpu, &set);
-    (void)sched_setaffinity(0, sizeof(set), &set);
-    if (priority > 0) {
-        struct sched_param sp;
-        memset(&sp, 0, sizeof(sp));
-        sp.sched_priority = priority;
-        (void)sched_setscheduler(0, SCHED_FIFO, &sp);
+    char msg[256];
+    if (vl_rt_set_affinity(cpu, msg, sizeof(msg)) != VL_RT_OK) {
+        fprintf(stderr, "vislam-latency: warning: %s\n", msg);
+    }
+    if (priority > 0 && vl_rt_set_fifo(priority, msg, sizeof(msg)) != VL_RT_OK) {
+        fprintf(stderr, "vislam-latency: warning: %s\n", msg);
     }
 }
 
@@ -848,7 +846,8 @@ typedef struct {
     double work_p50, work_max, work_mean;
     const step_t *costliest; /* slowest step */
     const step_t *heaviest;  /* step with the most work */
-    uint64_t overruns;
+    uint64_t overruns;       /* in-process steps over the budget */
+    uint64_t e2e_overruns;   /* end-to-end latencies over the budget */
     long budget_us;
     uint32_t window;
     double callgrind;
@@ -886,13 +885,19 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
         fprintf(stderr, "vislam-latency: cannot write %s: %s\n", path, strerror(errno));
         return -1;
     }
-    fprintf(f, "{\n  \"log\": \"%s\",\n  \"window\": %u,\n  \"passes\": %d,\n  \"frames_per_pass\": %zu,\n",
-            opt.log_path, (unsigned)res->window, opt.passes, lg->frames);
+    /* The path as given, or null when it would need escaping. */
+    int plain = 1;
+    for (const char *c = opt.log_path; *c != '\0'; ++c) {
+        plain &= *c != '"' && *c != '\\' && (unsigned char)*c >= 0x20;
+    }
+    fprintf(f, plain ? "{\n  \"log\": \"%s\",\n" : "{\n  \"log\": null,\n", opt.log_path);
+    fprintf(f, "  \"window\": %u,\n  \"passes\": %d,\n  \"frames_per_pass\": %zu,\n", (unsigned)res->window, opt.passes,
+            lg->frames);
     fprintf(f, "  \"rate\": \"%s\",\n  \"cpu\": %d,\n  \"other_cpu\": %d,\n  \"rt_priority\": %d,\n",
             opt.rate_max ? "max" : "sensor", opt.cpu, opt.other_cpu, opt.rt_priority);
     fprintf(f, "  \"rt_granted\": %s,\n  \"load\": %s,\n  \"steps\": %zu,\n  \"budget_us\": %ld,\n",
             res->rt_granted ? "true" : "false", opt.load ? "true" : "false", nsteps, res->budget_us);
-    fprintf(f, "  \"overruns\": %" PRIu64 ",\n", res->overruns);
+    fprintf(f, "  \"overruns\": %" PRIu64 ",\n  \"e2e_overruns\": %" PRIu64 ",\n", res->overruns, res->e2e_overruns);
     json_summary(f, "step_us", &res->step, ",");
     json_summary(f, "propagate_us", &res->prop, ",");
     json_summary(f, "e2e_us", opt.e2e ? &res->e2e : NULL, ",");
@@ -1109,6 +1114,9 @@ int main(int argc, char **argv)
     res.heaviest = &steps[heaviest];
     res.step = summarize(step_us, nsteps);
     res.prop = summarize(prop_us, nprop);
+    for (size_t i = 0; i < e2e.n; ++i) {
+        res.e2e_overruns += e2e.us[i] > (double)res.budget_us;
+    }
     res.e2e = summarize(e2e.us, e2e.n);
     const summary_t w = summarize(work, nsteps);
     res.work_p50 = w.p50;
@@ -1142,7 +1150,8 @@ int main(int argc, char **argv)
     if (res.cyclictest_max >= 0) {
         fprintf(stderr, "  cyclictest in the same run: max %ld us\n", res.cyclictest_max);
     }
-    fprintf(stderr, "  budget %ld us: %" PRIu64 " overrun(s)\n", res.budget_us, res.overruns);
+    fprintf(stderr, "  budget %ld us: %" PRIu64 " step(s) over it in-process, %" PRIu64 " end to end\n", res.budget_us,
+            res.overruns, res.e2e_overruns);
     fprintf(stderr, "  work per step (core's count): p50 %.3g  max %.3g flops (max/p50 %.2f)\n", res.work_p50,
             res.work_max, res.work_p50 > 0 ? res.work_max / res.work_p50 : 0.0);
     const step_t *c = res.costliest;
