@@ -26,6 +26,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <sys/prctl.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -114,7 +116,8 @@ static void usage(FILE *f)
                "  --no-probe          no jitter probe\n"
                "  --json FILE         the figures as JSON (with the samples the plot draws)\n"
                "  --plot FILE.png     CDFs of the step and end-to-end latency with the jitter floor\n"
-               "                      (Python: $VISLAM_PYTHON, else the project's .venv, else python3)\n"
+               "                      (Python: $VISLAM_PYTHON, else the project's .venv, else python3;\n"
+               "                      vislam_tools from $VISLAM_TOOLS_DIR, else the source tree's tools/)\n"
                "  --work-dir DIR      where the end-to-end pass keeps vislamd's and the replay's outputs\n"
                "                      (default: a new directory under $TMPDIR, removed at the end)\n"
                "  --quiet             only the summary\n"
@@ -490,14 +493,24 @@ static void pin_self(int cpu, int priority)
     }
 }
 
-/* Starts argv with stdout and stderr to log_path (NULL: inherited), pinned to cpu (-1: not). */
+/* In a child: it ends with this program, so that no helper outlives a killed measurement. */
+static void die_with_parent(void)
+{
+    (void)prctl(PR_SET_PDEATHSIG, SIGTERM);
+}
+
+/* Starts argv with stdout and stderr to log_path (NULL: inherited), pinned to cpu (-1: not); -1 if fork failed. */
 static pid_t spawn(char *const argv[], const char *log_path, int cpu, int priority)
 {
     fflush(NULL);
     const pid_t pid = fork();
     if (pid != 0) {
+        if (pid < 0) {
+            fprintf(stderr, "vislam-latency: cannot start %s: %s\n", argv[0], strerror(errno));
+        }
         return pid;
     }
+    die_with_parent();
     if (log_path != NULL) {
         FILE *f = freopen(log_path, "w", stderr);
         if (f != NULL) {
@@ -512,10 +525,13 @@ static pid_t spawn(char *const argv[], const char *log_path, int cpu, int priori
     _exit(127);
 }
 
-/* Waits for pid; its exit status, or 128 + signal. */
+/* Waits for pid; its exit status, 128 + signal, or -1 (no such child). */
 static int wait_child(pid_t pid)
 {
     int status = 0;
+    if (pid <= 0) {
+        return -1;
+    }
     while (waitpid(pid, &status, 0) < 0) {
         if (errno != EINTR) {
             return -1;
@@ -532,6 +548,7 @@ static pid_t start_load(int cpu)
     if (pid != 0) {
         return pid;
     }
+    die_with_parent();
     pin_self(cpu, 0);
     volatile unsigned char *buf = (volatile unsigned char *)malloc(LOAD_BYTES);
     unsigned v = 1;
@@ -683,7 +700,9 @@ static void run_e2e(const char *dir, e2e_t *e)
         const pid_t daemon = spawn((char *const *)dargv, dlog, -1, 0);
         const pid_t player = spawn((char *const *)rargv, rlog, opt.other_cpu, opt.rt_priority);
         const int rc = wait_child(player);
-        kill(daemon, SIGTERM);
+        if (daemon > 0) {
+            kill(daemon, SIGTERM);
+        }
         const int drc = wait_child(daemon);
         const long long expected = json_int(json, "frames_expected");
         const long long returned = json_int(json, "frames_returned");
@@ -816,7 +835,8 @@ static int run_plot(const char *json, const char *png)
 {
     char python[PATH_LEN], tools[PATH_LEN], pythonpath[PATH_LEN + 16];
     const char *env_python = getenv("VISLAM_PYTHON");
-    snprintf(tools, sizeof(tools), "%s", VL_TOOLS_DIR);
+    const char *env_tools = getenv("VISLAM_TOOLS_DIR");
+    snprintf(tools, sizeof(tools), "%s", env_tools != NULL && env_tools[0] != '\0' ? env_tools : VL_TOOLS_DIR);
     if (env_python != NULL && env_python[0] != '\0') {
         snprintf(python, sizeof(python), "%s", env_python);
     } else {
@@ -979,6 +999,7 @@ static void find_self_dir(const char *argv0)
    the plot) choose their own CPU and priority instead of inheriting the measurement's. */
 static void release_rt(int cpus)
 {
+    (void)munlockall();
     struct sched_param sp;
     memset(&sp, 0, sizeof(sp));
     (void)sched_setscheduler(0, SCHED_OTHER, &sp);
