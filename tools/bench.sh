@@ -5,7 +5,7 @@
 #   tools/bench.sh                          every section (about 5-10 minutes)
 #   tools/bench.sh --quick                  shorter variants (about 2-3 minutes)
 #   tools/bench.sh --section timing ...     only these sections (repeatable, or comma-separated):
-#                                           accuracy sweep window timing daemon figures conditions soak
+#                                           accuracy sweep window timing daemon figures conditions soak latency
 # Options: --data DIR (default ../shared/data), --build-dir DIR (default build-bench),
 #          --no-build (use the build as it is), --cyclictest-seconds N (default 10, quick 5)
 #
@@ -96,7 +96,7 @@ if [ "${1:-}" = "--daemon-inner" ]; then
 fi
 
 # ---- options ------------------------------------------------------------------------------------
-ALL_SECTIONS=(accuracy sweep window timing daemon figures conditions soak)
+ALL_SECTIONS=(accuracy sweep window timing daemon figures conditions soak latency)
 QUICK=0
 SECTIONS=()
 DATA="../shared/data"
@@ -770,6 +770,69 @@ section_conditions() {
   end_section
 }
 
+# ---- 9. latency -----------------------------------------------------------------------------------
+# vislam-latency: the step in-process and end to end through vislamd, with the jitter floor of the
+# same run and the core's work per step; LCM on the loopback of a private network namespace.
+section_latency() {
+  begin_section latency "9. Latency (vislam-latency: in-process and through vislamd, with the jitter floor)"
+  local d="$OUT/latency" rows log name netns=1 r label file extra
+  mkdir -p "$d"
+  rows="$d/rows.tsv"
+  : >"$rows"
+  : >"$d/runs.log"
+  if [ "$QUICK" -eq 0 ] && [ "$HAVE_DATA" -eq 1 ] && log=$(logfor 0034); then
+    name=0034
+  else
+    say "(--quick or no seed datasets: on the sample log instead of 0034)"
+    log=data/sample.lcmlog
+    name=sample
+  fi
+  if ! unshare --net true 2>/dev/null || ! command -v ip >/dev/null 2>&1; then
+    say "(no private network namespace (unshare --net) or no ip: in-process only)"
+    netns=0
+  fi
+  if [ ! -x "$BIN/vislam-latency" ]; then
+    say "SKIPPED: $BIN/vislam-latency missing (build it first)."
+    end_section
+    return
+  fi
+  # As a robot would run it (SCHED_FIFO 80) where this is root; at normal priority otherwise.
+  local sensor="sensor rate|--rate sensor"
+  [ "$(id -u)" -eq 0 ] && sensor="sensor rate, SCHED_FIFO 80|--rate sensor --rt-priority 80"
+  local runs=("$name, $sensor"
+    "$name, as fast as possible x5|--rate max --passes 5"
+    "$name, as fast as possible x5, --load|--rate max --passes 5 --load")
+  say "Host: $(nproc) CPUs, $(sed -n 's/^model name\s*: //p' /proc/cpuinfo | head -n 1); load average before: $(cut -d' ' -f1-3 /proc/loadavg)."
+  say ""
+  for r in "${runs[@]}"; do
+    IFS='|' read -r label extra <<<"$r"
+    file=$(printf '%s' "$label" | tr -c 'A-Za-z0-9' '_')
+    note "vislam-latency: $label"
+    local cmd=("$BIN/vislam-latency" "$log" --json "$d/$file.json" --plot "$d/$file.png")
+    # shellcheck disable=SC2206 # $extra holds separate options
+    cmd+=($extra)
+    if [ "$netns" -eq 1 ]; then
+      cmd+=(--lcm-url "$LCM_URL")
+      rec unshare --net bash -c 'ip link set lo up multicast on && ip route add 224.0.0.0/4 dev lo && exec "$@"' bash \
+        "${cmd[@]}"
+      VISLAM_PYTHON="$REPO_ROOT/$PY" unshare --net bash -c \
+        'ip link set lo up multicast on && ip route add 224.0.0.0/4 dev lo && exec "$@"' bash "${cmd[@]}" \
+        >>"$d/runs.log" 2>&1 || warn "vislam-latency ($label) failed (see $d/runs.log)"
+    else
+      VISLAM_PYTHON="$REPO_ROOT/$PY" run "$d/runs.log" "${cmd[@]}" --no-e2e
+    fi
+    printf '%s\t%s\n' "$label" "$d/$file.json" >>"$rows"
+  done
+  say "Step: vl_update through vl_session in vislam-latency's own process, pinned to CPU 1; end to end:"
+  say "vislamd (CPU 1) and vislam-replay --lockstep (CPU 0) over LCM, frame published to pose received;"
+  say "jitter floor: how late a 1 kHz clock_nanosleep probe on each CPU woke during the same run;"
+  say "work: the core's own count (vl_get_work); budget: the log's frame period. Figures per run in"
+  say "$d/*.json, CDFs in $d/*.png."
+  say ""
+  table latency "$rows"
+  end_section
+}
+
 # ---- main -----------------------------------------------------------------------------------------
 echo "== vislam benchmarks: ${SECTIONS[*]}$([ "$QUICK" -eq 1 ] && echo " (quick)")"
 [ "$HAVE_DATA" -eq 0 ] && echo "   NOTE: no seed datasets in $DATA: the parts that need them are skipped"
@@ -784,6 +847,7 @@ for s in "${ALL_SECTIONS[@]}"; do
     soak) section_soak ;;
     figures) section_figures ;;
     conditions) section_conditions ;;
+    latency) section_latency ;;
   esac
 done
 

@@ -35,6 +35,7 @@
 #include "vl_se3.h"
 #include "vl_update.h"
 #include "vl_window.h"
+#include "vl_work.h"
 
 typedef char vl_assert_capacity_positive[(VL_MAX_LANDMARKS >= 1) ? 1 : -1];
 typedef char vl_assert_capacity_bounded[(VL_MAX_LANDMARKS <= 4096) ? 1 : -1];
@@ -81,6 +82,7 @@ static void reset_state(vl_estimator_t *e, int keep_clock)
     const vl_estimator_t *old = e; /* the fields are copied out before init_state clears them */
     const vl_config_t cfg = old->cfg;
     vl_counters_t counters = old->counters;
+    const vl_work_t work = old->work; /* a reset inside a call keeps what the call did */
     counters.landmarks_discarded += old->num_landmarks;
     counters.resets++;
     const int have_imu = old->have_imu, have_frame = old->have_frame, imu_silent = old->imu_silent;
@@ -92,6 +94,7 @@ static void reset_state(vl_estimator_t *e, int keep_clock)
     const int held_trusted = old->held_trusted;
     init_state(e, &cfg);
     e->counters = counters;
+    e->work = work;
     if (keep_clock) {
         e->have_imu = have_imu;
         e->have_frame = have_frame;
@@ -161,6 +164,7 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
     if (e == NULL || imu == NULL) {
         return VL_ERR_NULL;
     }
+    vl_work_begin(e);
     if (!e->initialized) {
         return VL_ERR_NOT_READY;
     }
@@ -239,10 +243,13 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     if (k == 0) {
         return VL_OK;
     }
+    const uint32_t n = vl_state_dim(e);
     if (e->cfg.gate_chi2 <= 0.0) {
+        vl_work_update(e, n, k, 0, 0);
         return vl_update_apply(e, rows, k); /* no outlier rejection at all (the seed's plain EKF) */
     }
     const uint32_t contradicting = vl_outliers_gate(e, rows, k);
+    vl_work_gate(e, k);
     if (vl_outliers_reassociated(e, k, contradicting)) {
         /* Most tracks contradict the state at once: the tracker re-associated its
          * ids (it does so when it detects new features). None of these
@@ -258,6 +265,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     e->reassociated_run = 0;
     if (e->cfg.ransac_hypotheses > 0 && k >= 2) {
         vl_outliers_ransac(e, rows, k);
+        vl_work_ransac(e, n, k, e->cfg.ransac_hypotheses < k ? e->cfg.ransac_hypotheses : k);
     }
     const uint32_t partitioned = vl_outliers_partition(e, rows, k);
     const uint32_t rest = k - partitioned;
@@ -267,6 +275,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
         prior_diag[i] = *vl_P_at(e, i, i);
     }
     vl_status_t st = vl_update_apply(e, rows, inliers);
+    vl_work_update(e, n, inliers, st == VL_OK && inliers > 0 && e->cfg.adaptive_noise, k);
     if (st == VL_OK && inliers > 0 && e->cfg.adaptive_noise) {
         vl_noise_adapt_pixel(e, rows, k);
         vl_noise_adapt_velocity(e, prior_diag);
@@ -283,6 +292,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
         e->counters.observations_deferred += inliers + rescued - cap;
         rescued = cap - inliers;
     }
+    vl_work_rescue(e, n, rest, rescued);
     return vl_update_apply(e, rows, rescued);
 }
 
@@ -291,6 +301,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     if (e == NULL || frame == NULL) {
         return VL_ERR_NULL;
     }
+    vl_work_begin(e);
     if (!e->initialized || !e->have_imu) {
         if (e->initialized) {
             e->counters.frames_rejected++;
@@ -376,9 +387,13 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     }
 
     /* 4. Tracks that ended or broke leave the window for the map. */
+    const uint64_t marginalized_before = e->counters.landmarks_marginalized;
+    const uint64_t admitted_before = e->counters.landmarks_initialized;
     vl_window_retire(e);
     /* 5. Admissions, best first, including the restarts of broken tracks. */
     vl_window_admit(e, frame, &candidates);
+    vl_work_window(e, vl_state_dim(e), count, (uint32_t)(e->counters.landmarks_marginalized - marginalized_before),
+                   (uint32_t)(e->counters.landmarks_initialized - admitted_before));
     return guard_divergence(e, VL_INPUT_FRAME, frame->utime, result);
 }
 
@@ -467,6 +482,18 @@ vl_status_t vl_flush_landmarks(vl_estimator_t *e)
         vl_window_marginalize(e, e->num_landmarks - 1u);
     }
     return VL_OK;
+}
+
+void vl_get_work(const vl_estimator_t *e, vl_work_t *out)
+{
+    if (out == NULL) {
+        return;
+    }
+    if (e == NULL) {
+        memset(out, 0, sizeof(*out));
+        return;
+    }
+    *out = e->work;
 }
 
 const vl_counters_t *vl_get_counters(const vl_estimator_t *e)

@@ -10,6 +10,7 @@
 #include "vl_estimator_internal.h"
 #include "vl_linalg.h"
 #include "vl_se3.h"
+#include "vl_work.h"
 
 /*
  * Moves the state to utime with the velocity u = (lin, ang) over the interval.
@@ -59,6 +60,7 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
         Gp[i] *= -tau;
     }
     const uint32_t n = vl_state_dim(e);
+    vl_work_predict(e, n, e->cfg.estimate_input_offsets);
     double *G = e->work_PHt; /* n x 6, column-major; the update workspace is free here */
     for (int j = 0; j < 6; ++j) {
         double *col = &G[(size_t)j * n];

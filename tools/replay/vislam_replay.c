@@ -68,6 +68,7 @@ typedef struct {
     const char *features_channel;
     const char *wait_for;
     const char *summary_json;
+    const char *latency_samples;
     const char *imu_channel;
     const char *calib_channel;
     const char *status_channel;
@@ -129,6 +130,7 @@ typedef struct {
     int matched;
     uint64_t expected, returned, missing;
     vl_latency_t latency;
+    FILE *samples; /* --latency-samples: one end-to-end latency per line */
     vislam_pose_t pose_msg;
     /* inputs decoded with the receivers' checks (vl_log_event_decode), for their utime */
     vl_log_decoder_t decoder;
@@ -173,6 +175,7 @@ static void usage(FILE *f)
             "                        restart, whose sequence numbers start again (default " VL_CHANNEL_STATUS ")\n"
             "  --lcm-url URL         LCM provider (default: $LCM_DEFAULT_URL, else LCM's default)\n"
             "  --summary-json FILE   also write the summary as JSON\n"
+            "  --latency-samples FILE  lockstep: each frame's end-to-end latency, us, one per line\n"
             "  --quiet               no progress line and no summary on stderr\n"
             "  --version             print the version and exit\n"
             "  --help                this text\n"
@@ -237,9 +240,10 @@ static int parse_args(int argc, char **argv, options_t *o)
             continue;
         }
         static const char *const with_value[] = {
-            "--speed",         "--timeout-ms",       "--linger-ms",       "--channels",     "--lcm-url",
-            "--pose-channel",  "--features-channel", "--wait-for",        "--summary-json", "--imu-channel",
-            "--calib-channel", "--status-channel",   "--calib-period-ms", "--max-timeouts", "--wait-timeout-ms"};
+            "--speed",           "--timeout-ms",   "--linger-ms",        "--channels",
+            "--lcm-url",         "--pose-channel", "--features-channel", "--wait-for",
+            "--summary-json",    "--imu-channel",  "--calib-channel",    "--status-channel",
+            "--calib-period-ms", "--max-timeouts", "--wait-timeout-ms",  "--latency-samples"};
         int known = 0;
         for (size_t k = 0; k < sizeof(with_value) / sizeof(with_value[0]); ++k) {
             known |= strcmp(a, with_value[k]) == 0;
@@ -314,6 +318,8 @@ static int parse_args(int argc, char **argv, options_t *o)
             o->wait_for = v;
         } else if (strcmp(a, "--summary-json") == 0) {
             o->summary_json = v;
+        } else if (strcmp(a, "--latency-samples") == 0) {
+            o->latency_samples = v;
         } else {
             fprintf(stderr, "vislam-replay: unknown option %s (see --help)\n", a);
             return -1;
@@ -483,6 +489,9 @@ static void on_pose(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
     if (r->waiting && !r->matched && m->source == VISLAM_POSE_T_SOURCE_FEATURES && m->utime == r->expected_utime) {
         r->matched = 1;
         vl_latency_record(&r->latency, now - r->publish_mono_us);
+        if (r->samples != NULL) {
+            fprintf(r->samples, "%" PRId64 "\n", now - r->publish_mono_us);
+        }
     }
 }
 
@@ -678,6 +687,11 @@ int main(int argc, char **argv)
         return EXIT_USAGE;
     }
     r->last_sequence = -1;
+    if (o->latency_samples != NULL && (r->samples = fopen(o->latency_samples, "w")) == NULL) {
+        fprintf(stderr, "vislam-replay: cannot write %s: %s\n", o->latency_samples, strerror(errno));
+        lcm_eventlog_destroy(log);
+        return EXIT_USAGE;
+    }
 
     if (vl_signal_install() != 0) {
         fprintf(stderr, "vislam-replay: cannot install signal handlers: %s\n", strerror(errno));
@@ -848,6 +862,10 @@ int main(int argc, char **argv)
         print_summary(r, wall_s, interrupted);
     }
     if (o->summary_json != NULL && write_json(r, wall_s, interrupted) != 0) {
+        incomplete = 1;
+    }
+    if (r->samples != NULL && (ferror(r->samples) | fclose(r->samples)) != 0) {
+        fprintf(stderr, "vislam-replay: write error on %s\n", o->latency_samples);
         incomplete = 1;
     }
     lcm_destroy(r->lcm);

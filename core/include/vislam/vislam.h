@@ -263,6 +263,27 @@ typedef struct {
 /** Number of members of vl_counters_t (rows of VL_COUNTERS). */
 #define VL_NUM_COUNTERS (0 VL_COUNTERS(VL_COUNTER_ONE_))
 
+/**
+ * The arithmetic one vl_propagate or vl_update call did, counted by the core from
+ * the dimensions it used (not measured): a machine-independent cost of the step.
+ * Units are floating-point operations (a multiply-add is 2); copying an element of
+ * the covariance (marginalization) counts 1. Leading terms follow the algorithm
+ * (the joint update with n states and m rows: n^2 m + n m^2 + m^3 / 3 + ...); the
+ * small fixed-size parts are rounded estimates. A refused call did no work: zero.
+ */
+typedef struct {
+    uint64_t flops;      /**< all stages below, flops */
+    uint64_t predict;    /**< prediction to the input's time (covariance rank updates), flops */
+    uint64_t gate;       /**< innovation gate of the tracked observations, flops */
+    uint64_t ransac;     /**< 1-point RANSAC: hypotheses x (one-row correction + residuals), flops */
+    uint64_t update;     /**< the joint update on the inliers and the noise adaptation after it, flops */
+    uint64_t rescue;     /**< re-checking the rejected rows and the joint update of the rescued ones, flops */
+    uint64_t window;     /**< update rows, marginalizations and admissions of the window, flops */
+    uint32_t state_dim;  /**< joint state dimension n at the update (or prediction), states */
+    uint32_t rows;       /**< rows m of the joint updates (3 per observation used), rows */
+    uint32_t hypotheses; /**< RANSAC hypotheses tried */
+} vl_work_t;
+
 /** Per-landmark bookkeeping of the window (internal; read with vl_get_landmarks). */
 typedef struct {
     int32_t id;
@@ -301,6 +322,7 @@ typedef struct {
 typedef struct {
     vl_config_t cfg;
     vl_counters_t counters;
+    vl_work_t work; /**< the last vl_propagate or vl_update's work (vl_get_work) */
 
     int initialized;
     int have_imu;
@@ -421,6 +443,12 @@ uint32_t vl_get_state_flags(const vl_estimator_t *e);
 
 /** Marginalizes every landmark in the window into the sink (end of a run). */
 vl_status_t vl_flush_landmarks(vl_estimator_t *e);
+
+/**
+ * The work of the last vl_propagate or vl_update call, per stage (zero after
+ * vl_init and after a refused call). Cheap: a copy; out is zeroed for a NULL e.
+ */
+void vl_get_work(const vl_estimator_t *e, vl_work_t *out);
 
 /** Counters since vl_init. */
 const vl_counters_t *vl_get_counters(const vl_estimator_t *e);

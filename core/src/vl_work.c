@@ -1,0 +1,106 @@
+/*
+ * The work of each stage, in flops (a multiply-add is 2), from the dimensions the
+ * stage used. The terms in n (states), m (rows) and k (observations) follow the
+ * code they count (vl_linalg.cpp's loops and products); the fixed-size parts
+ * (one 3x9 observation, one 3x3 solve, one SE(3) exponential) are rounded
+ * estimates, which matter only when n and m are small.
+ */
+#include "vl_work.h"
+
+#include <string.h>
+
+/* Making one observation's rows: camera point, projection and its Jacobian, two 3x3 products. */
+#define VL_WORK_ROW 200u
+/* One observation's 3x3 innovation covariance (H P H^T over 9 columns) and its Mahalanobis distance. */
+#define VL_WORK_OBS_CHECK (2u * (3u * 9u * 9u + 3u * 9u * 3u) + 40u)
+/* The residual of one observation after a correction: 3 rows of 9 multiply-adds. */
+#define VL_WORK_RESIDUAL (2u * 3u * 9u + 6u)
+/* The pose part of a prediction or a correction: SE(3) exponential, Jacobians, 6x6 products. */
+#define VL_WORK_POSE 1000u
+/* Moving one landmark by a correction: two 3x3 products and a sum. */
+#define VL_WORK_LANDMARK_CORRECTION 39u
+
+static void add(vl_estimator_t *e, uint64_t *stage, uint64_t flops)
+{
+    *stage += flops;
+    e->work.flops += flops;
+}
+
+/* The joint update with k observations (m = 3k rows) on n states, as vl_la_update does it. */
+static uint64_t joint_update(uint32_t n_states, uint32_t k_obs)
+{
+    if (k_obs == 0) {
+        return 0;
+    }
+    const uint64_t n = n_states, k = k_obs, m = 3u * k_obs;
+    const uint64_t pht = 2u * n * 9u * m;                               /* P H^T from 9 columns per observation */
+    const uint64_t s = 2u * 9u * 3u * (m * k - 3u * k * (k - 1u) / 2u); /* upper block rows of S */
+    const uint64_t chol = m * m * m / 3u + m * m;                       /* blocked Cholesky */
+    const uint64_t whiten = m * m + n * m * (m + 1u);                   /* L^-1 r and W = P H^T L^-T */
+    const uint64_t dx = 2u * n * m;                                     /* dx = W L^-1 r */
+    const uint64_t downdate = n * (n + 1u) * m;                         /* P -= W W^T, lower triangle */
+    const uint64_t correct = VL_WORK_POSE + VL_WORK_LANDMARK_CORRECTION * ((n - VL_CORE_DIM) / 3u);
+    return pht + s + chol + whiten + dx + downdate + correct;
+}
+
+void vl_work_begin(vl_estimator_t *e)
+{
+    memset(&e->work, 0, sizeof(e->work));
+}
+
+void vl_work_predict(vl_estimator_t *e, uint32_t n_states, int with_offsets)
+{
+    const uint64_t n = n_states;
+    const uint64_t rank6 = 6u * n * (n + 1u); /* one symmetric rank-6 update of the lower triangle */
+    uint64_t flops = VL_WORK_POSE + 6u * 6u * ((n - VL_CORE_DIM) / 3u) + 6u * n + rank6;
+    if (with_offsets) {
+        flops += 2u * rank6 + 2u * 36u * n + 18u * n; /* M = P E + G Pbb / 2, G +- M */
+    }
+    add(e, &e->work.predict, flops);
+    if (e->work.state_dim == 0) {
+        e->work.state_dim = n_states;
+    }
+}
+
+void vl_work_gate(vl_estimator_t *e, uint32_t k)
+{
+    add(e, &e->work.gate, (uint64_t)k * VL_WORK_OBS_CHECK);
+}
+
+void vl_work_ransac(vl_estimator_t *e, uint32_t n, uint32_t k, uint32_t hypotheses)
+{
+    /* One hypothesis: P H^T for one observation (n x 3 from 9 columns), its 3x3 S and
+     * solve, dx = P H^T w, then the residual of every observation after dx. */
+    const uint64_t one = 2u * (uint64_t)n * 9u * 3u + 6u * (uint64_t)n + 200u + (uint64_t)k * VL_WORK_RESIDUAL;
+    add(e, &e->work.ransac, (uint64_t)hypotheses * one);
+    e->work.hypotheses += hypotheses;
+}
+
+void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint32_t k_frame)
+{
+    uint64_t flops = joint_update(n, k);
+    if (adapted) {
+        /* Pixel noise: each row's posterior check and residual, a median of 3 k values;
+         * velocity noise: a few 3-vectors. */
+        flops += (uint64_t)k_frame * (VL_WORK_OBS_CHECK + VL_WORK_RESIDUAL + 12u) + 100u;
+    }
+    add(e, &e->work.update, flops);
+    e->work.state_dim = n;
+    e->work.rows += 3u * k;
+}
+
+void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued)
+{
+    add(e, &e->work.rescue, (uint64_t)checked * (VL_WORK_ROW + VL_WORK_OBS_CHECK) + joint_update(n, rescued));
+    e->work.rows += 3u * rescued;
+}
+
+void vl_work_window(vl_estimator_t *e, uint32_t n, uint32_t observations, uint32_t marginalized, uint32_t admitted)
+{
+    /* A marginalization copies 3 columns and 3 rows of P (and hands the landmark's
+     * marginal out); an admission fills 3 rows from the 6 pose rows (J_pose P). */
+    const uint64_t marg = 6u * (uint64_t)n + 300u;
+    const uint64_t admit = 2u * 3u * 6u * (uint64_t)n + 3u * (uint64_t)n + 500u;
+    add(e, &e->work.window,
+        (uint64_t)observations * VL_WORK_ROW + (uint64_t)marginalized * marg + (uint64_t)admitted * admit);
+}

@@ -1,0 +1,33 @@
+/**
+ * @file vl_work.h
+ * @brief Counting the arithmetic of each stage of a step from the dimensions it
+ *        used (vl_work_t; internal to core/). One call per stage, made where the
+ *        stage runs; the formulas live in vl_work.c only.
+ */
+#ifndef VISLAM_VL_WORK_H
+#define VISLAM_VL_WORK_H
+
+#include "vislam/vislam.h"
+
+/** Starts a vl_propagate or vl_update call: its work so far is zero. */
+void vl_work_begin(vl_estimator_t *e);
+
+/** A prediction of an n-state joint covariance (three rank-6 updates with offset states, else one). */
+void vl_work_predict(vl_estimator_t *e, uint32_t n, int with_offsets);
+
+/** The innovation gate of k observations. */
+void vl_work_gate(vl_estimator_t *e, uint32_t k);
+
+/** RANSAC over k observations with the given hypotheses, on an n-state joint covariance. */
+void vl_work_ransac(vl_estimator_t *e, uint32_t n, uint32_t k, uint32_t hypotheses);
+
+/** The joint update with k observations on n states, then (adapted) the noise adaptation over all k_frame rows. */
+void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint32_t k_frame);
+
+/** The rescue pass: checked observations re-linearized and gated, then the joint update of the rescued ones. */
+void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued);
+
+/** The window: rows made for the frame's observations, marginalizations and admissions, on n states. */
+void vl_work_window(vl_estimator_t *e, uint32_t n, uint32_t observations, uint32_t marginalized, uint32_t admitted);
+
+#endif /* VISLAM_VL_WORK_H */
