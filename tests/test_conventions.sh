@@ -22,7 +22,7 @@ source "$(dirname "$0")/support/vl_record.sh" # check, eq, ge
 OUT=$(mktemp -d /tmp/vislam_test_conventions.XXXXXX)
 trap 'rm -rf "$OUT"' EXIT
 FAILS=0
-PROGRAMS=(vislam-run vislamd vislam-replay vislam-sim)
+PROGRAMS=(vislam-run vislamd vislam-replay vislam-sim vislam-latency)
 
 PROJECT_VERSION=$(sed -n 's/^project(vislam VERSION \([^ )]*\).*/\1/p' "$SRC/CMakeLists.txt")
 VERSION=""

@@ -35,6 +35,7 @@
 
 #include "vislam/vislam.h"
 #include "vl_channels.h"
+#include "vl_cli.h"
 #include "vl_clock.h"
 #include "vl_config_file.h"
 #include "vl_jitter.h"
@@ -121,6 +122,7 @@ static void usage(FILE *f)
                "  --work-dir DIR      where the end-to-end pass keeps vislamd's and the replay's outputs\n"
                "                      (default: a new directory under $TMPDIR, removed at the end)\n"
                "  --quiet             only the summary\n"
+               "  --version           print the version and exit\n"
                "  --help              this text\n"
                "\n"
                "Exit status: 0 measured; 1 the end-to-end pass got no (or not every) pose back, or a helper\n"
@@ -156,6 +158,8 @@ static int parse_args(int argc, char **argv, options_t *o)
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             exit(0);
+        } else if (strcmp(a, "--version") == 0) {
+            exit(vl_cli_print_version(stdout, "vislam-latency") == 0 ? 0 : 1);
         } else if (strcmp(a, "--load") == 0) {
             o->load = 1;
         } else if (strcmp(a, "--no-e2e") == 0) {
