@@ -58,7 +58,9 @@ if [ "$MODE" = install ]; then
   # find_package: one configure and build of C, C++ and LCM consumers.
   cmake -S "$CONSUMER" -B "$TMP/find" -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$P" >"$TMP/find.log" 2>&1 &&
     cmake --build "$TMP/find" -j 2 >>"$TMP/find.log" 2>&1
-  check "find_package(vislam): the consumers configure and build" eq $? 0 || cat "$TMP/find.log"
+  rc=$?
+  check "find_package(vislam): the consumers configure and build" eq $rc 0
+  [ "$rc" -eq 0 ] || cat "$TMP/find.log"
   check "find_package found the temporary prefix's package, VL_MAX_LANDMARKS $N" \
     grep -q "vislam 0.1.0, VL_MAX_LANDMARKS $N, from $LIBDIR/cmake/vislam" "$TMP/find.log"
   for prog in consumer_c consumer_cxx lcm_consumer; do
@@ -101,7 +103,9 @@ elif [ "$MODE" = subproject ]; then
   cmake -S "$CONSUMER" -B "$TMP/sub" -DCMAKE_BUILD_TYPE=Release -DVISLAM_SOURCE_DIR="$SRC" \
     -DCMAKE_EXPORT_COMPILE_COMMANDS=ON >"$TMP/sub.log" 2>&1 &&
     cmake --build "$TMP/sub" -j 2 --target consumer_c consumer_cxx consumer_warns >>"$TMP/sub.log" 2>&1
-  check "add_subdirectory(vislam): the consumers configure and build" eq $? 0 || cat "$TMP/sub.log"
+  rc=$?
+  check "add_subdirectory(vislam): the consumers configure and build" eq $rc 0
+  [ "$rc" -eq 0 ] || cat "$TMP/sub.log"
   check "the consumer's file with a #warning compiled (warned, not failed)" \
     grep -q "warning: #warning \"tests/consumer/warns.c" "$TMP/sub.log"
   check "vislam built no tests inside the consumer" test ! -e "$TMP/sub/vislam/tests"
