@@ -137,6 +137,8 @@ const char *vl_status_str(vl_status_t status)
         return "IMU sample beyond max_speed or max_rotation_rate";
     case VL_ERR_IMU_SILENT:
         return "frame refused: IMU silent longer than max_imu_silence";
+    case VL_ERR_ABI_MISMATCH:
+        return "caller compiled with other capacities or another vislam.h than the library";
     }
     return "unknown status";
 }
