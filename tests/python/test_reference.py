@@ -100,3 +100,16 @@ def test_isam2_tracks_the_sample(build_dir, tmp_path):
     assert len(est) == 60
     stats, _, _, _ = ate(est.positions, truth.positions[:60])
     assert stats["rmse"] < 0.1  # dead reckoning: 0.27 m by then
+
+
+def test_summary_tables_say_na_for_missing_runs(tmp_path, capsys):
+    from reference import summary
+    ate = tmp_path / "a.json"
+    ate.write_text(json.dumps({"ate": {"rmse": 3.2}}))
+    stats = tmp_path / "s.json"
+    stats.write_text(json.dumps({"step_us": {"median": 62000.0, "max": 7.7e6}}))
+    rows = tmp_path / "rows.tsv"
+    rows.write_text(f"0027\tKITTI 07\t{ate}\t{tmp_path / 'missing.json'}\t{ate}\t{ate}\t{stats}\n")
+    assert summary.main(["isam2", str(rows)]) == 0
+    line = capsys.readouterr().out.splitlines()[-1]
+    assert line == "| 0027 | KITTI 07 | 3.20 | n/a | 3.20 | 3.20 | 62.0 / 7700 |"

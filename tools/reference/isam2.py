@@ -36,7 +36,7 @@ import time
 
 import numpy as np
 
-from vislam_tools.geometry import make_pose, se3_exp, se3_inv
+from vislam_tools.geometry import se3_exp, se3_inv
 
 from .vl_reference import read_log, tum_line
 

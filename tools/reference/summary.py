@@ -58,9 +58,8 @@ def isam2(rows):
     for label, truth, v, online, smoothed, batch, stats in rows:
         s = _load(stats)
         cells = [_fmt(_get(_load(p), "ate", "rmse"), ".2f") for p in (v, online, smoothed, batch)]
-        step = f"{_fmt(_get(s, 'step_us', 'median'), '.0f')} / {_fmt(_get(s, 'step_us', 'max'), '.0f')}"
-        if s is not None:
-            step = f"{s['step_us']['median'] / 1e3:.1f} / {s['step_us']['max'] / 1e3:.0f}"
+        median, worst = _get(s, "step_us", "median"), _get(s, "step_us", "max")
+        step = f"{_fmt(median and median / 1e3, '.1f')} / {_fmt(worst and worst / 1e3, '.0f')}"
         print(f"| {label} | {truth} | " + " | ".join(cells) + f" | {step} |")
 
 

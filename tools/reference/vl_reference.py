@@ -328,7 +328,8 @@ class Filter:
         self.var_v = cfg["linear_velocity"] ** 2
         self.var_w = cfg["angular_velocity"] ** 2
         self.var_px = cfg["pixel"] ** 2
-        self.state_utime = None
+        self.state_utime = None  # us; None until the first IMU sample
+        self.last_imu_utime = None
         self.held_v = self.held_w = None
         self.last_frame_utime = None
         self.frame_index = 0
