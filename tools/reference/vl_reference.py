@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vislam_tools import channels
-from vislam_tools.geometry import hat3
+from vislam_tools.geometry import hat3, rot_to_quat
 from vislam_tools.lcmtypes import load, load_lcm
 
 CORE_DIM = 12                # rho, phi, linear offset, angular offset
@@ -53,6 +53,8 @@ class ReferenceError(Exception):
 
 
 # ------------------------------------------------------------------------------------- SO(3), SE(3)
+# Written again rather than taken from vislam_tools.geometry: these follow core/src/vl_se3.c
+# (Taylor series below 1 rad, the polar normalization), so that the two filters round alike.
 
 def _trig_series(t2, m):
     """Taylor series of sin t / t (m = 1), (1 - cos t) / t^2 (m = 2), (t - sin t) / t^3 (m = 3),
@@ -869,33 +871,12 @@ def _same_calibration(a, b):
 
 
 def tum_line(utime, R, p):
-    """A trajectory line exactly as vislam-run writes it (core's quaternion, %.9f)."""
-    w, x, y, z = rotation_to_quaternion(R)
+    """A trajectory line in vislam-run's format (time from the integer microseconds, %.9f)."""
+    w, x, y, z = rot_to_quat(R)
     sign = "-" if utime < 0 else ""
     mag = abs(utime)
     return (f"{sign}{mag // 1000000}.{mag % 1000000:06d} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} "
             f"{x:.9f} {y:.9f} {z:.9f} {w:.9f}\n")
-
-
-def rotation_to_quaternion(R):
-    """(w, x, y, z), w >= 0, by Shepperd's method in core/src/vl_se3.c's branch order."""
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    if tr >= R[0, 0] and tr >= R[1, 1] and tr >= R[2, 2]:
-        r = math.sqrt(1.0 + tr)
-        q = [0.5 * r, 0.5 * (R[2, 1] - R[1, 2]) / r, 0.5 * (R[0, 2] - R[2, 0]) / r, 0.5 * (R[1, 0] - R[0, 1]) / r]
-    elif R[0, 0] >= R[1, 1] and R[0, 0] >= R[2, 2]:
-        r = math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = [0.5 * (R[2, 1] - R[1, 2]) / r, 0.5 * r, 0.5 * (R[0, 1] + R[1, 0]) / r, 0.5 * (R[0, 2] + R[2, 0]) / r]
-    elif R[1, 1] >= R[2, 2]:
-        r = math.sqrt(1.0 - R[0, 0] + R[1, 1] - R[2, 2])
-        q = [0.5 * (R[0, 2] - R[2, 0]) / r, 0.5 * (R[0, 1] + R[1, 0]) / r, 0.5 * r, 0.5 * (R[1, 2] + R[2, 1]) / r]
-    else:
-        r = math.sqrt(1.0 - R[0, 0] - R[1, 1] + R[2, 2])
-        q = [0.5 * (R[1, 0] - R[0, 1]) / r, 0.5 * (R[0, 2] + R[2, 0]) / r, 0.5 * (R[1, 2] + R[2, 1]) / r, 0.5 * r]
-    q = np.array(q)
-    if q[0] < 0.0:
-        q = -q
-    return q / np.linalg.norm(q)
 
 
 def write_tum(path, result):
