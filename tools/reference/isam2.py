@@ -83,7 +83,7 @@ def smooth_motion_factor(gtsam, keys, dt1, dt2, model):
 
 
 def run(events, a):
-    """Feeds the log to iSAM2 frame by frame; returns (times, online poses, isam, keys, stats)."""
+    """Feeds the log to iSAM2 frame by frame; returns (frame times in us, online poses, isam, stats)."""
     gtsam = _gtsam()
     X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
     params = gtsam.ISAM2Params()
