@@ -1,6 +1,7 @@
 """The NumPy reference filter (tools/reference/vl_reference.py) computes what the C core computes.
 
-Both run on the first frames of data/sample.lcmlog through tools/reference/compare; their poses must
+Both run on the first frames of data/sample.lcmlog through tools/reference/compare, with the default
+configuration (velocity samples interpolated) and the seed preset (samples held); their poses must
 agree to 1e-8 m and 1e-8 rad (measured: under 1e-9, the TUM file's print resolution). A change to the
 math of either filter moves the poses far more than that: the last test changes the reference's pixel
 noise by one part in a million and checks that the comparison catches it.
