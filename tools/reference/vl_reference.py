@@ -250,6 +250,27 @@ def splitmix64(state):
     return state, z ^ (z >> 31)
 
 
+# ------------------------------------------------------------------------------------- velocity samples
+
+def sample_velocity(held, held_utime, new, state_utime, utime, interpolate):
+    """The velocity that carries the state from state_utime to utime (us), where a new sample
+    arrives (core/src/vl_predict.c, vl_predict_to_sample), and its noise in units of one sample's
+    variance. held was sampled at held_utime <= state_utime. Without interpolate the held sample
+    applies, with its own noise. With it, each sample is the velocity at its time and the velocity
+    is linear between the two: the state moves by the line's mean over what is left of the
+    interval, the line at the middle of [state_utime, utime], held + w (new - held) with
+    w = ((state_utime + utime) / 2 - held_utime) / (utime - held_utime) (1/2 on a whole interval:
+    the trapezoid rule). A mean of two independent samples with weights (1 - w, w) has
+    (1 - w)^2 + w^2 of one sample's variance (that neighbouring intervals share a sample is not
+    modelled). Works on any stack of components (the C code does each of v, w the same way)."""
+    if not interpolate:
+        return held, 1.0
+    span = float(utime - held_utime)
+    middle = 0.5 * (float(state_utime - held_utime) + span)
+    w = middle / span if span > 0.0 else 1.0
+    return held + w * (new - held), (1.0 - w) * (1.0 - w) + w * w
+
+
 # ------------------------------------------------------------------------------------- configuration
 
 def read_config(vislam_run, preset=None, config_file=None, max_landmarks=None):
@@ -398,22 +419,12 @@ class Filter:
 
     def predict_to_sample(self, utime, linear, angular):
         """Across the interval from the last sample to this one (the state may be part of the way
-        there, at a frame). Without interpolate_velocities the held sample applies. With it, each
-        sample is the velocity at its time and the velocity is linear between two samples: the
-        pose integrates the line's mean over what is left of the interval, the line at the middle
-        of [state_utime, utime], u = u_held + w (u_new - u_held) with
-        w = ((state_utime + utime) / 2 - t_held) / (utime - t_held) (w = 1/2, the trapezoid, on a
-        whole interval); the weighted mean of two independent samples has (1 - w)^2 + w^2 of one
-        sample's variance. Frames between the samples are reached with the held sample (update)."""
-        if not self.cfg["interpolate_velocities"]:
-            self.predict_to(utime)
-            return
-        span = float(utime - self.last_imu_utime)
-        middle = 0.5 * (float(self.state_utime - self.last_imu_utime) + span)
-        w = middle / span if span > 0.0 else 1.0
-        lin = self.held_v + w * (linear - self.held_v)
-        ang = self.held_w + w * (angular - self.held_w)
-        self.predict_to(utime, lin, ang, (1.0 - w) * (1.0 - w) + w * w)
+        there, at a frame), with the velocity sample_velocity gives; frames between the samples are
+        reached with the held sample (update)."""
+        u, share = sample_velocity(np.concatenate([self.held_v, self.held_w]), self.last_imu_utime,
+                                   np.concatenate([linear, angular]), self.state_utime, utime,
+                                   self.cfg["interpolate_velocities"])
+        self.predict_to(utime, u[:3], u[3:], share)
 
     def _check_silence(self, utime):
         if utime - self.last_imu_utime > self.cfg["max_imu_silence"] * 1e6:
