@@ -8,9 +8,17 @@ tools/requirements.txt, so CI does not install it.
 
 The graph, one pose X_k (world-from-IMU, as vislam's) per camera frame:
 - a prior fixing X_0 at the identity (vislam starts there);
-- a between factor X_{k-1}^-1 X_k = exp(tau hat(u)) from the held velocity sample, the seed's motion
-  model, with covariance tau^2 diag(sigma_w^2 I, sigma_v^2 I) (GTSAM orders [rotation, translation]);
-  sigma_v, sigma_w default to vislam's configured noise (0.5 m/s, 0.05 rad/s);
+- a between factor X_{k-1}^-1 X_k from the velocity samples, integrated as vislam's default
+  configuration does (interpolate_velocities; vl_reference.sample_velocity): each sample is the
+  velocity at its time and the velocity is linear between two samples, so a sample-to-sample
+  interval moves by exp(tau hat((u_a + u_b) / 2)), the trapezoid; a frame between two samples is
+  reached with the held sample, the rest of the interval with the line's mean over it. Each piece
+  of length tau adds tau^2 s diag(sigma_w^2 I, sigma_v^2 I) to the covariance (GTSAM orders
+  [rotation, translation]), s = (1 - w)^2 + w^2 for the weights (1 - w, w) of the two samples
+  (1/2 for the trapezoid, 1 for a held sample; that neighbouring intervals share a sample is not
+  modelled, as in vislam). --held-velocities holds each sample until the next instead (the seed's
+  motion model, interpolate_velocities = false). sigma_v, sigma_w default to vislam's configured
+  noise per sample (0.5 m/s, 0.05 rad/s);
 - a GenericStereoFactor3D per observation on [u_left, u_right, (v_left + v_right) / 2] with a Huber
   loss, to a Point3 landmark in the world; the sensor pose is imu_T_cam;
 - a smooth-motion prior on every three consecutive poses (smooth_motion_factor): the velocities
@@ -38,7 +46,7 @@ import numpy as np
 
 from vislam_tools.geometry import se3_exp, se3_inv
 
-from .vl_reference import read_log, tum_line
+from .vl_reference import read_log, sample_velocity, tum_line
 
 
 def _gtsam():
@@ -96,8 +104,8 @@ def run(events, a):
     smooth = gtsam.noiseModel.Diagonal.Sigmas(np.array([a.smooth_angular] * 3 + [a.smooth_linear] * 3))
     dts, last_frame_t = [], None
     cal = K = imu_T_cam = None
-    held = last_t = None
-    delta, tau_sum2 = np.eye(4), 0.0
+    held = held_t = last_t = None
+    delta, tau_sum2 = np.eye(4), 0.0  # the motion since the last frame; sum of tau^2 s over its pieces
     k = -1
     epoch = 0                      # incremented at each stale frame: landmark (id, epoch) is one track piece
     landmarks, first_seen = {}, {}  # (id, epoch) -> L index; (id, epoch) -> (frame, StereoPoint2, disparity)
@@ -114,14 +122,18 @@ def run(events, a):
         if cal is None:
             continue
         t = ev[1]
+        sample = np.concatenate([ev[2], ev[3]]) if ev[0] == "imu" else None
         if held is not None and t > last_t:
+            # A frame's time is reached with the held sample, as vislam does (the next is not known yet).
+            u, share = (sample_velocity(held, held_t, sample, last_t, t, not a.held_velocities)
+                        if sample is not None else (held, 1.0))
             tau = (t - last_t) * 1e-6
-            delta = delta @ se3_exp(tau * held)
-            tau_sum2 += tau * tau
-        if held is not None or ev[0] == "imu":
+            delta = delta @ se3_exp(tau * u)
+            tau_sum2 += tau * tau * share
+        if held is not None or sample is not None:
             last_t = t
-        if ev[0] == "imu":
-            held = np.concatenate([ev[2], ev[3]])
+        if sample is not None:
+            held, held_t = sample, t
             continue
         if held is None:
             continue
@@ -210,6 +222,9 @@ def main(argv=None):
     ap.add_argument("--huber", type=float, default=1.345, help="Huber threshold in sigmas (default 1.345)")
     ap.add_argument("--linear-sigma", type=float, default=0.5, help="m/s per sample (default 0.5)")
     ap.add_argument("--angular-sigma", type=float, default=0.05, help="rad/s per sample (default 0.05)")
+    ap.add_argument("--held-velocities", action="store_true",
+                    help="hold each velocity sample until the next (as vislam's interpolate_velocities = false, "
+                    "the seed preset) instead of the line between two samples")
     ap.add_argument("--smooth-linear", type=float, default=0.2,
                     help="m/s: how much the linear velocity may change from one frame to the next in the "
                     "smooth-motion prior (default 0.2; 0 turns the prior off)")

@@ -8,8 +8,9 @@ numbers of RANSAC, the stable admission order), this code makes the same one, so
 the two trajectories agree to rounding (tests/python/test_reference.py holds them to it).
 
 Not modelled: the robustness rules of core/src/vl_guard.c that never act on a clean log (time
-jumps, new timelines, IMU silence, divergence resets, frame truncation, implausible IMU samples)
-and the mapping mode. A log that would need one stops the run with ReferenceError.
+jumps, new timelines, IMU silence, divergence resets and with them the held sample distrusted after
+one an IMU sample led to, frame truncation, implausible IMU samples) and the mapping mode. A log
+that would need one stops the run with ReferenceError.
 
 Notation (README, "The estimator"): the pose T = (R, p) is world-from-IMU; the state is
 [rho, phi, b_v, b_w, rho_1, ..., rho_N] with the invariant error T = exp(xi) T_hat and
@@ -249,6 +250,27 @@ def splitmix64(state):
     return state, z ^ (z >> 31)
 
 
+# ------------------------------------------------------------------------------------- velocity samples
+
+def sample_velocity(held, held_utime, new, state_utime, utime, interpolate):
+    """The velocity that carries the state from state_utime to utime (us), where a new sample
+    arrives (core/src/vl_predict.c, vl_predict_to_sample), and its noise in units of one sample's
+    variance. held was sampled at held_utime <= state_utime. Without interpolate the held sample
+    applies, with its own noise. With it, each sample is the velocity at its time and the velocity
+    is linear between the two: the state moves by the line's mean over what is left of the
+    interval, the line at the middle of [state_utime, utime], held + w (new - held) with
+    w = ((state_utime + utime) / 2 - held_utime) / (utime - held_utime) (1/2 on a whole interval:
+    the trapezoid rule). A mean of two independent samples with weights (1 - w, w) has
+    (1 - w)^2 + w^2 of one sample's variance (that neighbouring intervals share a sample is not
+    modelled). Works on any stack of components (the C code does each of v, w the same way)."""
+    if not interpolate:
+        return held, 1.0
+    span = float(utime - held_utime)
+    middle = 0.5 * (float(state_utime - held_utime) + span)
+    w = middle / span if span > 0.0 else 1.0
+    return held + w * (new - held), (1.0 - w) * (1.0 - w) + w * w
+
+
 # ------------------------------------------------------------------------------------- configuration
 
 def read_config(vislam_run, preset=None, config_file=None, max_landmarks=None):
@@ -347,15 +369,19 @@ class Filter:
 
     # ---- prediction (README "Prediction"; core/src/vl_predict.c)
 
-    def predict_to(self, utime):
-        """T <- T exp(tau (u - b)); the invariant error does not move (Phi = I) except through the
-        input noise n and the offset error db, both entering as u -> u - n - db:
-        d xi = G (n + db) with G = -tau Ad(T_new) J_r(tau (u - b)) on the pose, and hat(l_i) times
-        G's rotation rows on landmark i. P <- Phi P Phi^T + G Q G^T + Q_b, Phi = I + G E^T."""
+    def predict_to(self, utime, linear=None, angular=None, noise_share=1.0):
+        """T <- T exp(tau (u - b)) with u = (linear, angular), the held sample by default; the
+        invariant error does not move (Phi = I) except through the input noise n and the offset
+        error db, both entering as u -> u - n - db: d xi = G (n + db) with
+        G = -tau Ad(T_new) J_r(tau (u - b)) on the pose, and hat(l_i) times G's rotation rows on
+        landmark i. P <- Phi P Phi^T + G Q G^T + Q_b, Phi = I + G E^T, with Q the configured (or
+        adapted) variance of one sample times noise_share."""
         tau = (utime - self.state_utime) * 1e-6
         if tau <= 0.0:
             return
-        xi = tau * np.concatenate([self.held_v - self.b_v, self.held_w - self.b_w])
+        linear = self.held_v if linear is None else linear
+        angular = self.held_w if angular is None else angular
+        xi = tau * np.concatenate([linear - self.b_v, angular - self.b_w])
         dR, dp = se3_exp(xi)
         self.p = self.p + self.R @ dp
         self.R = so3_normalize(self.R @ dR)
@@ -371,7 +397,7 @@ class Filter:
             # Phi P Phi^T = P + G M^T + M G^T with M = P E + G (E^T P E) / 2, E the offset columns.
             M = P[:, 6:12] + G @ (0.5 * P[6:12, 6:12])
             P = P + G @ M.T + M @ G.T
-        Q = np.diag([self.var_v] * 3 + [self.var_w] * 3)
+        Q = np.diag([self.var_v * noise_share] * 3 + [self.var_w * noise_share] * 3)
         P = P + G @ Q @ G.T
         if self.cfg["estimate_input_offsets"]:
             walk = [self.cfg["linear_offset_walk"] ** 2 * tau] * 3 + [self.cfg["angular_offset_walk"] ** 2 * tau] * 3
@@ -379,16 +405,26 @@ class Filter:
         self.P = _symmetric(P)
 
     def propagate(self, utime, linear, angular):
-        """An IMU sample: predict with the held one to its time, then hold it."""
+        """An IMU sample: predict to its time (predict_to_sample), then hold it."""
+        linear, angular = np.asarray(linear, float), np.asarray(angular, float)
         if self.state_utime is None:
             self.state_utime = utime
         elif utime <= self.last_imu_utime or utime < self.state_utime:
             raise ReferenceError(f"IMU sample out of time order at {utime}")
         else:
             self._check_silence(utime)
-            self.predict_to(utime)
-        self.held_v, self.held_w = np.asarray(linear, float), np.asarray(angular, float)
+            self.predict_to_sample(utime, linear, angular)
+        self.held_v, self.held_w = linear, angular
         self.last_imu_utime = utime
+
+    def predict_to_sample(self, utime, linear, angular):
+        """Across the interval from the last sample to this one (the state may be part of the way
+        there, at a frame), with the velocity sample_velocity gives; frames between the samples are
+        reached with the held sample (update)."""
+        u, share = sample_velocity(np.concatenate([self.held_v, self.held_w]), self.last_imu_utime,
+                                   np.concatenate([linear, angular]), self.state_utime, utime,
+                                   self.cfg["interpolate_velocities"])
+        self.predict_to(utime, u[:3], u[3:], share)
 
     def _check_silence(self, utime):
         if utime - self.last_imu_utime > self.cfg["max_imu_silence"] * 1e6:
