@@ -78,8 +78,8 @@ typedef enum {
       "(12 + 3 landmarks)^2 x 3 observations; the inliers left out (evenly spread) stay in the " \
       "window for later frames.") \
     /* 40 Mflop trims the costliest updates of a full window (48 to 41 Mflop on 0034) and is \
-       the tightest budget measured within 0.05 m of ATE on 0027; 19 makes the costliest step \
-       2x the median, at +0.14 m (README). */ \
+       the tightest budget measured within 0.05 m of ATE on 0027; 19 brings the costliest step \
+       under 2x the median step's work, at +0.36 m (README). */ \
     X("estimator", "max_update_work", max_update_work, DOUBLE, 40.0, 0.0, DBL_MAX, 0, "Mflop", \
       "Most arithmetic one frame's joint updates may do, in millions of floating-point " \
       "operations (0: no bound). The update with n states and m rows costs about " \
