@@ -12,6 +12,8 @@
 
 #include <ini.h>
 
+#include "vl_cli.h"
+
 typedef enum {
     KEY_DOUBLE,   /* double member of vl_config_t */
     KEY_UINT32,   /* uint32_t member of vl_config_t */
@@ -271,14 +273,17 @@ static int check_range(load_ctx_t *ctx, const key_def_t *k, double v)
 {
     int low = k->min_open ? !(v > k->min) : !(v >= k->min);
     if (low || v > k->max) {
+        char value[VL_CLI_DOUBLE_MAX], lo[VL_CLI_DOUBLE_MAX], hi[VL_CLI_DOUBLE_MAX];
+        vl_cli_format_double(value, sizeof(value), v);
+        vl_cli_format_double(lo, sizeof(lo), k->min);
+        vl_cli_format_double(hi, sizeof(hi), k->max);
         if (k->max == DBL_MAX) {
-            key_error(ctx, k->section, k->name, "%.17g is out of range: must be %s %.17g", v,
-                      k->min_open ? ">" : ">=", k->min);
+            key_error(ctx, k->section, k->name, "%s is out of range: must be %s %s", value,
+                      k->min_open ? ">" : ">=", lo);
         } else if (k->min == -DBL_MAX) {
-            key_error(ctx, k->section, k->name, "%.17g is out of range: must be <= %.17g", v, k->max);
+            key_error(ctx, k->section, k->name, "%s is out of range: must be <= %s", value, hi);
         } else {
-            key_error(ctx, k->section, k->name, "%.17g is out of range %s%.17g, %.17g]", v, k->min_open ? "(" : "[",
-                      k->min, k->max);
+            key_error(ctx, k->section, k->name, "%s is out of range %s%s, %s]", value, k->min_open ? "(" : "[", lo, hi);
         }
         return -1;
     }
@@ -729,18 +734,6 @@ void vl_config_apply_preset(vl_config_t *cfg, vl_preset_t preset)
     *cfg = fresh;
 }
 
-/* The fewest significant digits (15, 16 or 17) that read back to the same double. */
-static void format_double(char *buf, size_t len, double v)
-{
-    for (int digits = 15; digits < 17; ++digits) {
-        snprintf(buf, len, "%.*g", digits, v);
-        if (strtod(buf, NULL) == v) {
-            return;
-        }
-    }
-    snprintf(buf, len, "%.17g", v);
-}
-
 /* The value of a single-valued key in cfg as the reader takes it; the preset's and
    override_log's, which cfg does not hold, as the example shows them. */
 static void format_value(char *buf, size_t len, const key_def_t *k, const vl_config_t *cfg)
@@ -748,7 +741,7 @@ static void format_value(char *buf, size_t len, const key_def_t *k, const vl_con
     const char *member = (const char *)cfg + k->offset;
     switch (k->type) {
     case KEY_DOUBLE:
-        format_double(buf, len, *(const double *)member);
+        vl_cli_format_double(buf, len, *(const double *)member);
         return;
     case KEY_UINT32:
         snprintf(buf, len, "%u", (unsigned)*(const uint32_t *)member);
@@ -770,9 +763,9 @@ static void format_value(char *buf, size_t len, const key_def_t *k, const vl_con
 /* A key's units and range, and its default for the schema keys: "m/s, > 0, default 0.5". */
 static void format_attributes(char *buf, size_t len, const key_def_t *k)
 {
-    char lo[32], hi[32], range[96];
-    format_double(lo, sizeof(lo), k->min);
-    format_double(hi, sizeof(hi), k->max);
+    char lo[VL_CLI_DOUBLE_MAX], hi[VL_CLI_DOUBLE_MAX], range[96];
+    vl_cli_format_double(lo, sizeof(lo), k->min);
+    vl_cli_format_double(hi, sizeof(hi), k->max);
     switch (k->type) {
     case KEY_DOUBLE:
         if (k->min == -DBL_MAX && k->max == DBL_MAX) {
@@ -906,8 +899,8 @@ static int write_ini(FILE *f, const vl_config_t *cfg, int with_calibration, writ
             for (int r = 0; r < 4; ++r) {
                 fprintf(f, "%s", r == 0 ? "cam_T_imu =" : "           ");
                 for (int c = 0; c < 4; ++c) {
-                    char number[32];
-                    format_double(number, sizeof(number), m[4 * r + c]);
+                    char number[VL_CLI_DOUBLE_MAX];
+                    vl_cli_format_double(number, sizeof(number), m[4 * r + c]);
                     fprintf(f, " %s", number);
                 }
                 fputs("\n", f);
@@ -927,7 +920,8 @@ static int write_ini(FILE *f, const vl_config_t *cfg, int with_calibration, writ
             fprintf(f, "%s = %s\n", k->name, value);
         }
     }
-    return ferror(f) ? -1 : 0;
+    /* Flushed here, so a closed pipe or a full disk is this call's error, not a silent exit. */
+    return fflush(f) != 0 || ferror(f) ? -1 : 0;
 }
 
 int vl_config_write_ini(FILE *f, const vl_config_t *cfg, int with_calibration)

@@ -49,7 +49,7 @@ typedef struct {
 /**
  * Starts one probe on each of the first @p cpus CPUs (0 .. cpus-1; at most
  * VL_JITTER_MAX_CPUS). @p priority > 0 asks SCHED_FIFO at that priority (a
- * refusal leaves the probe at normal priority: see vl_jitter_fifo_granted).
+ * refusal leaves the probe at normal priority, with its fifo member 0).
  * @return probes started (0 when no thread could be created)
  */
 int vl_jitter_start(vl_jitter_t *j, int cpus, int priority);

@@ -145,10 +145,14 @@ vl_msg_status_t vl_msg_from_pose_bot(const vl_pose_t *pose, bot_core_pose_t *out
     }
     out->utime = pose->utime;
     vl_rotation_to_quaternion(pose->rotation, out->orientation);
+    /* libbot2 defines vel and rotation_rate in the local (world) frame: rotate the body-frame values. */
+    const double *R = pose->rotation;
+    const double *v = pose->linear_velocity;
+    const double *w = pose->angular_velocity;
     for (int i = 0; i < 3; ++i) {
         out->pos[i] = pose->position[i];
-        out->vel[i] = pose->linear_velocity[i];
-        out->rotation_rate[i] = pose->angular_velocity[i];
+        out->vel[i] = R[3 * i] * v[0] + R[3 * i + 1] * v[1] + R[3 * i + 2] * v[2];
+        out->rotation_rate[i] = R[3 * i] * w[0] + R[3 * i + 1] * w[1] + R[3 * i + 2] * w[2];
         out->accel[i] = 0.0;
     }
     return VL_MSG_OK;

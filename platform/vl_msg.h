@@ -77,9 +77,10 @@ int vl_calibration_equal(const vl_calibration_t *a, const vl_calibration_t *b);
 vl_msg_status_t vl_msg_from_pose(const vl_pose_t *pose, int8_t source, int64_t sequence, vislam_pose_t *out);
 
 /**
- * Fills a libbot2-compatible pose: position in the world, orientation
- * (w, x, y, z) world-from-body, vel and rotation_rate in the body frame
- * (the offset-corrected inputs), accel zero (not estimated).
+ * Fills a libbot2-compatible pose with libbot2's frames: position in the
+ * world (m), orientation (w, x, y, z) world-from-body, vel (m/s) and
+ * rotation_rate (rad/s) in the world ("local") frame, i.e. R times the
+ * offset-corrected body-frame values of @p pose; accel zero (not estimated).
  */
 vl_msg_status_t vl_msg_from_pose_bot(const vl_pose_t *pose, bot_core_pose_t *out);
 

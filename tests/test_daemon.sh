@@ -20,6 +20,9 @@
 #      and equals vislam-run with the same config.
 #   6. the same log replayed twice into one daemon: the second pass is a new timeline,
 #      the daemon re-initializes within a few inputs, says so in VISLAM_STATUS, and tracks again.
+#   7. a recording of run A by lcm-logger (inputs and the daemon's outputs) replayed: by default
+#      only the inputs go out, the recorded poses and statuses are skipped and counted;
+#      --all-channels sends them too (and the replay's own pose subscription receives them).
 # Synchronization waits on what the daemon publishes (its statuses, read back from the recording
 # or awaited by vislam-replay --wait-for), never on fixed delays; every number checked comes from
 # recorded messages, the replay's JSON summary, the trajectory files or the allocation counter's
@@ -89,7 +92,7 @@ LAST_UTIME=$(tail -n 1 "$OUT/offline.tum" | awk '{ split($1, t, "."); printf "%d
 
 # ---- run A: full lockstep replay at 4x ---------------------------------------------------------
 echo "== run A: vislamd + vislam-replay --lockstep --speed 4"
-start_recording a '(VISLAM_POSE|POSE|VISLAM_STATUS)' "$OUT/a.daemon.err" -- \
+start_recording a '(VISLAM_IMU|VISLAM_FEATURES|VISLAM_CALIB|VISLAM_POSE|POSE|VISLAM_STATUS)' "$OUT/a.daemon.err" -- \
   env VL_ALLOC_REPORT="$OUT/a.alloc" ${ALLOC_SO:+LD_PRELOAD="$ALLOC_SO"} "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/a.tum"
 check "run A: the daemon's first status recorded before any input" eq $? 0
 "$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 4 --timeout-ms 5000 \
@@ -231,6 +234,29 @@ check "tracking again: every frame from the third of the second pass has a traje
 check "every published pose is finite" eq "$(value "$D" pose.non_finite)" 0
 check "the final status is healthy again (0 or overrun)" \
   test \( "$(value "$D" status.last.health)" = 0 -o "$(value "$D" status.last.health)" = 2 \)
+
+# ---- run E: replaying what lcm-logger recorded in run A ------------------------------------------
+echo "== run E: vislam-replay of run A's recording (the replay's inputs and the daemon's outputs)"
+json_block() { # json_block FILE KEY: the lines of the JSON object KEY in vislam-replay's summary
+  awk -v k="\"$2\": {" 'index($0, k) { on = 1 } on { print } on && /}/ { exit }' "$1"
+}
+A_STATUSES=$(value "$A" status.count)
+"$BIN/vislam-replay" "$OUT/a.lcmlog" --lcm-url "$URL" --speed 20 --linger-ms 300 \
+  --summary-json "$OUT/e1.json" 2>"$OUT/e1.err"
+check "replay of the recording exits 0" eq $? 0
+check "it says at start what it replays" grep -q 'replaying the input channels VISLAM_IMU, VISLAM_FEATURES, VISLAM_CALIB' "$OUT/e1.err"
+# The recording's calibrations are the first replay's, re-published once a second of log time.
+check "by default: the inputs sent (200 IMU, 200 frames, the calibrations)" \
+  eq "$(json_block "$OUT/e1.json" channels | grep -cE '"(VISLAM_IMU|VISLAM_FEATURES)": 200|"VISLAM_CALIB": [1-9]')" 3
+check "by default: the recorded outputs skipped and counted (400 VISLAM_POSE, 400 POSE, $A_STATUSES VISLAM_STATUS)" \
+  eq "$(json_block "$OUT/e1.json" channels_skipped | grep -cE "\"(VISLAM_POSE|POSE)\": 400|\"VISLAM_STATUS\": $A_STATUSES,?\$")" 3
+check "by default: nothing on VISLAM_POSE" grep -q '"poses_received": 0,' "$OUT/e1.json"
+"$BIN/vislam-replay" "$OUT/a.lcmlog" --lcm-url "$URL" --speed 20 --linger-ms 300 --all-channels \
+  --summary-json "$OUT/e2.json" 2>"$OUT/e2.err"
+check "--all-channels: the recorded outputs sent too (400 VISLAM_POSE, 400 POSE), none skipped" \
+  eq "$(json_block "$OUT/e2.json" channels | grep -cE '"(VISLAM_POSE|POSE)": 400')/$(grep -c '"events_skipped": 0,' "$OUT/e2.json")" 2/1
+check "--all-channels: the recorded poses are on the wire (the replay's own subscription got some)" \
+  test "$(sed -n 's/.*"poses_received": \([0-9]*\),/\1/p' "$OUT/e2.json")" -gt 0
 
 echo "== $((SECONDS - START)) s, $FAILS failure(s)"
 [ "$FAILS" -eq 0 ]

@@ -247,6 +247,40 @@ void test_propagate_follows_exponential_map(void)
     }
 }
 
+/* Position x after samples of vx at 0 and 100 ms, with a frame at frame_ms (0: none). */
+static double x_after_two_samples(int interpolate, double vx0, double vx1, int64_t frame_ms)
+{
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.estimate_input_offsets = 0;
+    cfg.mode = VL_MODE_IMU_ONLY;
+    cfg.interpolate_velocities = interpolate;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = vl_test_imu_at(0, vx0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    if (frame_ms > 0) {
+        static vl_stereo_frame_t f;
+        make_frame(&cfg, &f, frame_ms * 1000, 0, 0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
+    }
+    s = vl_test_imu_at(100000, vx1, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    vl_pose_t pose;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+    return pose.position[0];
+}
+
+void test_propagate_integrates_the_line_between_instantaneous_samples(void)
+{
+    /* 1 m/s, then 3 m/s 0.1 s later: the trapezoid moves 0.2 m, the held sample 0.1 m. */
+    TEST_ASSERT_DOUBLE_WITHIN(1e-12, 0.2, x_after_two_samples(1, 1.0, 3.0, 0));
+    TEST_ASSERT_DOUBLE_WITHIN(1e-12, 0.1, x_after_two_samples(0, 1.0, 3.0, 0));
+    /* A frame at 50 ms is reached with the last sample (0.05 m), and the next sample finishes the
+     * interval with the line's mean over what is left (2.5 m/s for 0.05 s). */
+    TEST_ASSERT_DOUBLE_WITHIN(1e-12, 0.175, x_after_two_samples(1, 1.0, 3.0, 50));
+    TEST_ASSERT_DOUBLE_WITHIN(1e-12, 0.1, x_after_two_samples(0, 1.0, 3.0, 50));
+}
+
 /* ------------------------------------------------------------ shim: update and marginalization */
 
 #define N_TEST (VL_CORE_DIM + 3 * 3)
@@ -673,6 +707,7 @@ int main(void)
     RUN_TEST(test_update_truncates_oversized_frame_and_counts_it);
     RUN_TEST(test_update_counts_invalid_observations);
     RUN_TEST(test_propagate_follows_exponential_map);
+    RUN_TEST(test_propagate_integrates_the_line_between_instantaneous_samples);
     RUN_TEST(test_la_update_equals_dense_kalman_formula);
     RUN_TEST(test_la_update_refuses_indefinite_innovation_covariance);
     RUN_TEST(test_la_move_block_leaves_the_exact_marginal);

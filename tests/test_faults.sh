@@ -247,6 +247,7 @@ echo "== row foreign: a stray process answers every frame with NaN poses on VISL
 "$FAULTS" foreign-poses --lcm-url "$URL" --seconds 30 >"$OUT/fp.foreign.out" 2>&1 &
 FOREIGN=$!
 PIDS+=("$FOREIGN")
+check "the stray process listens before the replay starts" wait_line "$OUT/fp.foreign.out" "listening" 30
 start_logger fp
 start_daemon fp --trajectory "$OUT/fp.tum"
 replay fp "$LOG"

@@ -680,13 +680,49 @@ void test_vl_msg_from_pose_fills_both_messages(void)
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.position, m.position, 3);
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.covariance, m.covariance, 36);
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.linear_velocity, m.linear_velocity, 3);
+    TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.angular_velocity, m.angular_velocity, 3);
 
     bot_core_pose_t b;
     TEST_ASSERT_EQUAL_INT(VL_MSG_OK, vl_msg_from_pose_bot(&pose, &b));
     TEST_ASSERT_EQUAL_INT64(123, b.utime);
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(m.orientation, b.orientation, 4);
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.position, b.pos, 3);
-    TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.angular_velocity, b.rotation_rate, 3);
+}
+
+/* libbot2's pose_t has vel and rotation_rate in the local (world) frame: R times the body-frame values. */
+void test_vl_msg_from_pose_bot_rotates_velocities_into_the_world(void)
+{
+    vl_pose_t pose;
+    memset(&pose, 0, sizeof(pose));
+    const double n = 1.0 / sqrt(14.0);
+    const double axis[3] = {1.0 * n, -2.0 * n, 3.0 * n};
+    axis_angle(axis, 2.0, pose.rotation);
+    const double v[3] = {10.0, -0.5, 0.25};
+    const double w[3] = {0.02, -0.3, 0.1};
+    memcpy(pose.linear_velocity, v, sizeof(v));
+    memcpy(pose.angular_velocity, w, sizeof(w));
+
+    bot_core_pose_t b;
+    TEST_ASSERT_EQUAL_INT(VL_MSG_OK, vl_msg_from_pose_bot(&pose, &b));
+    const double *R = pose.rotation;
+    for (int i = 0; i < 3; ++i) {
+        const double vw = R[3 * i] * v[0] + R[3 * i + 1] * v[1] + R[3 * i + 2] * v[2];
+        const double ww = R[3 * i] * w[0] + R[3 * i + 1] * w[1] + R[3 * i + 2] * w[2];
+        TEST_ASSERT_DOUBLE_WITHIN(1e-12, vw, b.vel[i]);
+        TEST_ASSERT_DOUBLE_WITHIN(1e-12, ww, b.rotation_rate[i]);
+        TEST_ASSERT_EQUAL_DOUBLE(0.0, b.accel[i]);
+    }
+    /* A rotation keeps lengths, and this one moves every axis: the body values would fail above. */
+    TEST_ASSERT_DOUBLE_WITHIN(1e-12, sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]),
+                              sqrt(b.vel[0] * b.vel[0] + b.vel[1] * b.vel[1] + b.vel[2] * b.vel[2]));
+    TEST_ASSERT_TRUE(fabs(b.vel[0] - v[0]) > 1.0);
+    /* The world-frame velocity brought back through R^T is the body velocity the vislam message carries. */
+    vislam_pose_t m;
+    TEST_ASSERT_EQUAL_INT(VL_MSG_OK, vl_msg_from_pose(&pose, VISLAM_POSE_T_SOURCE_IMU, 0, &m));
+    for (int j = 0; j < 3; ++j) {
+        const double back = R[j] * b.vel[0] + R[3 + j] * b.vel[1] + R[6 + j] * b.vel[2];
+        TEST_ASSERT_DOUBLE_WITHIN(1e-12, m.linear_velocity[j], back);
+    }
 }
 
 void test_vl_trajectory_open_append_keeps_earlier_lines(void)
@@ -752,5 +788,6 @@ int main(void)
     RUN_TEST(test_vl_msg_calibration_round_trip);
     RUN_TEST(test_vl_rotation_to_quaternion_matches_axis_angle);
     RUN_TEST(test_vl_msg_from_pose_fills_both_messages);
+    RUN_TEST(test_vl_msg_from_pose_bot_rotates_velocities_into_the_world);
     return UNITY_END();
 }

@@ -221,6 +221,7 @@ static void test_vl_sim_step_truth_integrates_true_velocities(void)
     double u[6];
     int k, j;
     vl_sim_config_default(&cfg);
+    cfg.interval_velocities = 1; /* then the truth is exactly the held samples' motion */
     TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
     for (k = 0; vl_sim_step(&g_a, &imu, NULL, R, p) == 0; ++k) {
         const vl_imu_sample_t *t = vl_sim_true_imu(&g_a);
@@ -243,6 +244,54 @@ static void test_vl_sim_step_truth_integrates_true_velocities(void)
         prev_true = *t;
     }
     TEST_ASSERT_TRUE(vl_sim_distance(&g_a) > 200.0); /* about 8 m/s for 30 s */
+}
+
+/* Truth over one step from pose (R0, p0) with the velocity u held (w = 0) or the
+ * trapezoid of u and u_next (w = 0.5); returns the distance to (R1, p1), m. */
+static double step_error(const double R0[9], const double p0[3], const double u[6], const double u_next[6], double w,
+                         double tau, const double p1[3])
+{
+    double R[9], p[3], m[6];
+    int j;
+    memcpy(R, R0, sizeof(R));
+    memcpy(p, p0, sizeof(p));
+    for (j = 0; j < 6; ++j) {
+        m[j] = u[j] + w * (u_next[j] - u[j]);
+    }
+    vl_sim_integrate(R, p, m, tau);
+    return sqrt((p[0] - p1[0]) * (p[0] - p1[0]) + (p[1] - p1[1]) * (p[1] - p1[1]) + (p[2] - p1[2]) * (p[2] - p1[2]));
+}
+
+static void test_vl_sim_step_samples_are_instantaneous_velocities(void)
+{
+    vl_sim_config_t cfg;
+    vl_imu_sample_t imu, prev;
+    double R[9], p[3], R0[9], p0[3], u0[6], u[6];
+    double held = 0.0, trapezoid = 0.0, worst = 0.0;
+    int k;
+    vl_sim_config_default(&cfg);
+    TEST_ASSERT_EQUAL_INT(0, cfg.interval_velocities);
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+    for (k = 0; vl_sim_step(&g_a, &imu, NULL, R, p) == 0; ++k) {
+        const vl_imu_sample_t *t = vl_sim_true_imu(&g_a);
+        memcpy(u, t->linear_velocity, sizeof(t->linear_velocity));
+        memcpy(u + 3, t->angular_velocity, sizeof(t->angular_velocity));
+        if (k > 0) {
+            const double tau = (double)(t->utime - prev.utime) * 1e-6;
+            const double e = step_error(R0, p0, u0, u, 0.5, tau, p);
+            held += step_error(R0, p0, u0, u, 0.0, tau, p);
+            trapezoid += e;
+            worst = e > worst ? e : worst;
+        }
+        prev = *t;
+        memcpy(R0, R, sizeof(R));
+        memcpy(p0, p, sizeof(p));
+        memcpy(u0, u, sizeof(u));
+    }
+    /* The motion varies smoothly between samples: the trapezoid of the two samples
+     * follows it to second order, the held sample only to first order. */
+    TEST_ASSERT_TRUE(worst < 2e-3);
+    TEST_ASSERT_TRUE(trapezoid < 0.1 * held);
 }
 
 static void test_vl_sim_step_zero_noise_gives_exact_measurements(void)
@@ -338,9 +387,11 @@ static void test_vl_sim_conditions_off_leave_outputs_bit_identical(void)
     cfg.seed = 5;
     cfg.noise_seed = 3;
     cfg.num_steps = 400;
-    /* The simulator before the realistic conditions existed gave this hash for this run (the build
-       is ISO C99, so no floating-point contraction changes the bits; data/sample.lcmlog relies on
-       the same). Off must stay exactly that. */
+    cfg.interval_velocities = 1;
+    /* The simulator before the realistic conditions existed (its motion held each sample until
+       the next) gave this hash for this run (the build is ISO C99, so no floating-point
+       contraction changes the bits; data/sample.lcmlog relies on the same). Off must stay
+       exactly that. */
     TEST_ASSERT_EQUAL_HEX64(0x15C6790AAE7F80CBull, run_hash(&cfg));
     TEST_ASSERT_EQUAL_INT32(1794, vl_sim_tracks_issued(&g_a));
     vl_sim_counts(&g_a, &counts);
@@ -763,6 +814,7 @@ int main(void)
     RUN_TEST(test_vl_sim_step_ids_never_reappear_after_track_ends);
     RUN_TEST(test_vl_sim_step_frames_never_exceed_cap);
     RUN_TEST(test_vl_sim_step_truth_integrates_true_velocities);
+    RUN_TEST(test_vl_sim_step_samples_are_instantaneous_velocities);
     RUN_TEST(test_vl_sim_step_zero_noise_gives_exact_measurements);
     RUN_TEST(test_vl_sim_step_observation_statistics_like_real_data);
     RUN_TEST(test_vl_sim_conditions_off_leave_outputs_bit_identical);

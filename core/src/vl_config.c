@@ -29,6 +29,7 @@ void vl_config_preset_seed(vl_config_t *cfg)
     }
     vl_config_default(cfg);
     cfg->estimate_input_offsets = 0;
+    cfg->interpolate_velocities = 0; /* the seed held each sample until the next */
     /* W = diag(1e-5 I3, 1e-4 I3) per step; the estimator scales per-sample
      * velocity noise by the step, so at the nominal 0.1 s step these are W. */
     cfg->linear_velocity_noise = sqrt(1e-5) / 0.1;
@@ -137,6 +138,8 @@ const char *vl_status_str(vl_status_t status)
         return "IMU sample beyond max_speed or max_rotation_rate";
     case VL_ERR_IMU_SILENT:
         return "frame refused: IMU silent longer than max_imu_silence";
+    case VL_ERR_ABI_MISMATCH:
+        return "caller compiled with other capacities or another vislam.h than the library";
     }
     return "unknown status";
 }

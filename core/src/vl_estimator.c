@@ -91,6 +91,7 @@ static void reset_state(vl_estimator_t *e, int keep_clock)
     double held_linear[3], held_angular[3];
     memcpy(held_linear, old->held_linear, sizeof(held_linear));
     memcpy(held_angular, old->held_angular, sizeof(held_angular));
+    const int held_trusted = old->held_trusted;
     init_state(e, &cfg);
     e->counters = counters;
     e->work = work;
@@ -104,13 +105,20 @@ static void reset_state(vl_estimator_t *e, int keep_clock)
         e->clock_utime = clock;
         memcpy(e->held_linear, held_linear, sizeof(held_linear));
         memcpy(e->held_angular, held_angular, sizeof(held_angular));
+        e->held_trusted = held_trusted;
     }
 }
 
-vl_status_t vl_init(vl_estimator_t *e, const vl_config_t *cfg)
+vl_status_t vl_init_checked(vl_estimator_t *e, const vl_config_t *cfg, size_t estimator_size, size_t config_size,
+                            size_t frame_size, uint32_t max_landmarks)
 {
     if (e == NULL || cfg == NULL) {
         return VL_ERR_NULL;
+    }
+    /* Before anything reads cfg or writes e: the caller's copies may be smaller than ours. */
+    if (estimator_size != sizeof(vl_estimator_t) || config_size != sizeof(vl_config_t) ||
+        frame_size != sizeof(vl_stereo_frame_t) || max_landmarks != VL_MAX_LANDMARKS) {
+        return VL_ERR_ABI_MISMATCH;
     }
     if (((uintptr_t)(const void *)e % VL_ESTIMATOR_ALIGN) != 0) {
         return VL_ERR_MISALIGNED;
@@ -136,13 +144,20 @@ vl_status_t vl_reset(vl_estimator_t *e)
     return VL_OK;
 }
 
-/* After an input was used: a diverged estimator restarts (VL_RESET), else result stands. */
-static vl_status_t guard_divergence(vl_estimator_t *e, int64_t utime, vl_status_t result)
+/*
+ * After an input was used: a diverged estimator restarts (VL_RESET), else result
+ * stands. When an IMU sample led there, the sample does not carry the motion on:
+ * the motion restarts at the next sample.
+ */
+static vl_status_t guard_divergence(vl_estimator_t *e, vl_input_kind_t kind, int64_t utime, vl_status_t result)
 {
     if (!vl_guard_diverged(e)) {
         return result;
     }
     reset_state(e, 1);
+    if (kind == VL_INPUT_IMU) {
+        e->held_trusted = 0;
+    }
     e->counters.divergence_resets++;
     vl_log_msg(e, VL_LOG_ERROR, utime, "estimator diverged; re-initialized with the same configuration");
     return VL_RESET;
@@ -202,7 +217,7 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
             vl_predict_to(e, e->last_imu_utime + vl_limit_us(e->cfg.max_imu_silence));
             e->state_utime = imu->utime;
         } else {
-            vl_predict_to(e, imu->utime);
+            vl_predict_to_sample(e, imu);
         }
         vl_guard_time_passed(e, imu->utime);
     } else {
@@ -214,9 +229,10 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
     e->imu_silent = 0;
     memcpy(e->held_linear, imu->linear_velocity, sizeof(e->held_linear));
     memcpy(e->held_angular, imu->angular_velocity, sizeof(e->held_angular));
+    e->held_trusted = 1;
     e->last_imu_utime = imu->utime;
     e->counters.imu_accepted++;
-    return guard_divergence(e, imu->utime, result);
+    return guard_divergence(e, VL_INPUT_IMU, imu->utime, result);
 }
 
 /* ---------------------------------------------------------------- update */
@@ -350,7 +366,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     e->frame_index++;
     e->counters.frames_accepted++;
     if (e->cfg.mode == VL_MODE_IMU_ONLY) {
-        return guard_divergence(e, frame->utime, result);
+        return guard_divergence(e, VL_INPUT_FRAME, frame->utime, result);
     }
 
     /* 2. Observations of window landmarks become rows; the others feed the candidates. */
@@ -384,7 +400,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     vl_window_admit(e, frame, &candidates);
     vl_work_window(e, vl_state_dim(e), count, (uint32_t)(e->counters.landmarks_marginalized - marginalized_before),
                    (uint32_t)(e->counters.landmarks_initialized - admitted_before));
-    return guard_divergence(e, frame->utime, result);
+    return guard_divergence(e, VL_INPUT_FRAME, frame->utime, result);
 }
 
 /* ---------------------------------------------------------------- output */

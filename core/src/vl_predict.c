@@ -1,7 +1,7 @@
 /*
- * Prediction on SE(3): T <- T exp(tau (u - b)) with u the held velocities and b
- * their estimated offsets. In invariant error coordinates the error does not
- * move (Phi = I) except through the input noise and the offset error.
+ * Prediction on SE(3): T <- T exp(tau (u - b)) with u the velocity over the
+ * interval and b the estimated offsets. In invariant error coordinates the error
+ * does not move (Phi = I) except through the input noise and the offset error.
  */
 #include "vl_predict.h"
 
@@ -12,7 +12,12 @@
 #include "vl_se3.h"
 #include "vl_work.h"
 
-void vl_predict_to(vl_estimator_t *e, int64_t utime)
+/*
+ * Moves the state to utime with the velocity u = (lin, ang) over the interval.
+ * noise_share scales the input noise: the variance of u in units of one
+ * sample's variance (1 for a held sample).
+ */
+static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], const double ang[3], double noise_share)
 {
     const double tau = (double)vl_utime_diff(utime, e->state_utime) * 1e-6;
     if (tau <= 0.0) {
@@ -25,8 +30,8 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime)
 
     double xi[6], dR[9], dp[3];
     for (int i = 0; i < 3; ++i) {
-        xi[i] = tau * (e->held_linear[i] - e->offset_linear[i]);
-        xi[3 + i] = tau * (e->held_angular[i] - e->offset_angular[i]);
+        xi[i] = tau * (lin[i] - e->offset_linear[i]);
+        xi[3 + i] = tau * (ang[i] - e->offset_angular[i]);
     }
     vl_se3_exp(xi, dR, dp);
 
@@ -77,12 +82,61 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime)
             g[2] = l[0] * psi[1] - l[1] * psi[0];
         }
     }
-    const double sv2 = e->linear_velocity_var;
-    const double sw2 = e->angular_velocity_var;
+    const double sv2 = e->linear_velocity_var * noise_share;
+    const double sw2 = e->angular_velocity_var * noise_share;
     const double noise_var[6] = {sv2, sv2, sv2, sw2, sw2, sw2};
     const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
     const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
     const double offset_var[6] = {qv, qv, qv, qw, qw, qw};
     vl_la_propagate(e->P, VL_LD, (int)n, G, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL,
                     e->work_PHt + (size_t)6 * n);
+}
+
+/* Without a trusted sample there is no motion to integrate: the clock moves alone. */
+static int skip_untrusted(vl_estimator_t *e, int64_t utime)
+{
+    if (e->held_trusted) {
+        return 0;
+    }
+    if (vl_utime_diff(utime, e->state_utime) > 0) {
+        e->state_utime = utime;
+    }
+    return 1;
+}
+
+void vl_predict_to(vl_estimator_t *e, int64_t utime)
+{
+    if (!skip_untrusted(e, utime)) {
+        predict_with(e, utime, e->held_linear, e->held_angular, 1.0);
+    }
+}
+
+/*
+ * An instantaneous sample pins the velocity at its time; between two samples it
+ * is taken as linear. The pose integrates that line's mean over what is left of
+ * the interval, the line at the middle of [state_utime, imu->utime] (on a
+ * sample-to-sample interval: the trapezoid rule, (u_prev + u_new) / 2). The
+ * mean of two independent samples with weights (1 - w, w) has (1 - w)^2 + w^2
+ * of one sample's variance (that neighbouring intervals share a sample is not
+ * modelled).
+ */
+void vl_predict_to_sample(vl_estimator_t *e, const vl_imu_sample_t *imu)
+{
+    if (skip_untrusted(e, imu->utime)) {
+        return;
+    }
+    if (!e->cfg.interpolate_velocities) {
+        predict_with(e, imu->utime, e->held_linear, e->held_angular, 1.0);
+        return;
+    }
+    const double span = (double)vl_utime_diff(imu->utime, e->last_imu_utime);
+    const double middle = 0.5 * (double)(vl_utime_diff(e->state_utime, e->last_imu_utime) + span);
+    const double w = span > 0.0 ? middle / span : 1.0;
+    double lin[3], ang[3];
+    for (int i = 0; i < 3; ++i) {
+        lin[i] = e->held_linear[i] + w * (imu->linear_velocity[i] - e->held_linear[i]);
+        ang[i] = e->held_angular[i] + w * (imu->angular_velocity[i] - e->held_angular[i]);
+    }
+    const double share = (1.0 - w) * (1.0 - w) + w * w;
+    predict_with(e, imu->utime, lin, ang, share);
 }

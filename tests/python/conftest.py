@@ -2,6 +2,7 @@
 the same way the tools do (VISLAM_LCM_PYTHON_DIR, else $VISLAM_BUILD_DIR or <repo>/build)."""
 
 import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -31,3 +32,16 @@ def shared_data():
     if not (SHARED_DATA / "0027.npz").is_file():
         pytest.skip(f"seed datasets not found in {SHARED_DATA} (expected ../shared/data next to the repo)")
     return SHARED_DATA
+
+
+def evo_rmse(tool, args, home):
+    """Run one of evo's command line tools (evo_ape, evo_rpe) from this Python's environment, with
+    HOME at home (evo keeps its settings in ~/.evo), and return the rmse it prints; skip without evo."""
+    exe = Path(sys.executable).parent / tool
+    if not exe.is_file():
+        pytest.skip(f"{exe} not installed (pip install -r tools/requirements.txt)")
+    res = subprocess.run([str(exe)] + [str(a) for a in args], capture_output=True, text=True, timeout=120,
+                         env={"HOME": str(home), "PATH": "/usr/bin:/bin"})
+    assert res.returncode == 0, res.stdout + res.stderr
+    rows = dict(line.split() for line in res.stdout.splitlines() if len(line.split()) == 2)
+    return float(rows["rmse"])

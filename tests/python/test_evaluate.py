@@ -5,7 +5,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import REPO
+from conftest import REPO, evo_rmse
 from vislam_tools.evaluate import main
 from vislam_tools.geometry import make_pose, se3_exp, se3_inv, so3_exp
 from vislam_tools.trajio import read_tum, write_tum
@@ -80,6 +80,66 @@ def test_ate_with_kitti_ground_truth_and_npz_calibration(tmp_path):
     res = json.loads(out.read_text())
     assert res["ate"]["rmse"] < 1e-6
     assert res["rpe"][0]["rot_rmse_deg"] < 1e-4
+
+
+def kitti_case(tmp_path, n=30, fmt="{:.12g}"):
+    """An IMU trajectory, its KITTI camera poses printed with fmt, the npz calibration, the TUM estimate."""
+    times, imu = drive(n=n, noise=0.01, seed=3)
+    cam_T_imu = make_pose(so3_exp([1.2, -1.2, 1.2]), [1.1, -0.3, 0.7])
+    cam = cam_T_imu @ imu @ se3_inv(cam_T_imu)
+    kitti = tmp_path / "gt.txt"
+    kitti.write_text("".join(" ".join(fmt.format(x) for x in [t - times[0]] + list(p[:3, :4].ravel())) + "\n"
+                             for t, p in zip(times, cam)))
+    npz = tmp_path / "d.npz"
+    np.savez(npz, time_stamps=times[None, :], cam_T_imu=cam_T_imu, K=np.eye(3), b=np.float64(0.5))
+    est = tmp_path / "est.tum"
+    write_tum(est, times, imu)
+    return kitti, npz, est
+
+
+def test_rpe_rotation_of_rounded_kitti_truth_is_not_inflated(tmp_path):
+    # KITTI prints 7 digits, so its rotations are orthonormal to about 1e-7 only: arccos of the
+    # one-step error's trace, taken as it is, read 0.0075 deg for this perfect estimate.
+    kitti, npz, est = kitti_case(tmp_path, fmt="{:.6e}")
+    out = tmp_path / "ate.json"
+    assert main(["ate", "--estimate", str(est), "--gt", str(kitti), "--calib", str(npz), "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["rpe"][0]["delta"] == 1 and res["rpe"][0]["rot_rmse_deg"] < 1e-3
+    assert res["ate"]["rmse"] < 1e-5
+
+
+def test_gt_tum_and_evo_command_line_agree_with_evaluate(tmp_path, capsys):
+    kitti, npz, _ = kitti_case(tmp_path, n=40)
+    times, noisy = drive(n=40, noise=0.03, seed=11)
+    est = tmp_path / "noisy.tum"
+    write_tum(est, times, make_pose(so3_exp([0.1, -0.2, 0.9]), [4, 2, -1]) @ noisy)
+    gt_tum = tmp_path / "gt.tum"
+    assert main(["gt", "--gt", str(kitti), "--calib", str(npz), "--out", str(gt_tum)]) == 0
+    assert "40 poses" in capsys.readouterr().out
+    out = tmp_path / "ate.json"
+    assert main(["ate", "--estimate", str(est), "--gt", str(kitti), "--calib", str(npz), "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    home = tmp_path / "home"  # evo's command line tools keep their settings in ~/.evo
+    home.mkdir()
+    args = ["tum", str(gt_tum), str(est), "-a"]
+    assert evo_rmse("evo_ape", args, home) == pytest.approx(res["ate"]["rmse"], abs=1e-6)
+    for r in res["rpe"]:
+        rpe_args = args + ["--delta", str(r["delta"]), "--all_pairs"]
+        assert evo_rmse("evo_rpe", rpe_args, home) == pytest.approx(r["trans_rmse"], abs=1e-6)
+        assert evo_rmse("evo_rpe", rpe_args + ["-r", "angle_deg"], home) == pytest.approx(r["rot_rmse_deg"],
+                                                                                          abs=1e-5)
+    assert res["ate"]["rmse"] > 0.01  # a case where a wrong frame or pairing would show
+
+
+def test_importing_the_evo_based_metrics_has_no_side_effects(tmp_path):
+    # evo's command line tools write ~/.evo; the library modules used here must not, and must not
+    # pull in matplotlib (a display backend) either: the tools run on headless machines.
+    code = ("import sys; import vislam_tools.metrics, vislam_tools.trajio; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('matplotlib', 'pandas', 'seaborn')))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         env={"HOME": str(tmp_path), "PYTHONPATH": str(REPO / "tools"), "PATH": "/usr/bin:/bin"})
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]" and list(tmp_path.iterdir()) == []
 
 
 def test_ate_with_no_overlap_is_a_clear_error(files, tmp_path, capsys):

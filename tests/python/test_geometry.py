@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 
-from vislam_tools.geometry import (integrate_dead_reckoning, make_pose, quat_to_rot, quat_wxyz_to_xyzw,
-                                   quat_xyzw_to_wxyz, rot_to_quat, rotation_angle, se3_exp, se3_inv,
-                                   se3_log, so3_exp, so3_log, umeyama, hat6)
+from vislam_tools import ToolError
+from vislam_tools.geometry import (integrate_dead_reckoning, make_pose, nearest_rotation, quat_to_rot,
+                                   quat_wxyz_to_xyzw, quat_xyzw_to_wxyz, rot_to_quat, se3_exp, se3_inv,
+                                   se3_log, so3_exp, so3_log, hat6)
 from vislam_tools.metrics import ate
 
 RNG = np.random.default_rng(7)
@@ -25,38 +26,40 @@ def expm_series(a):
     return out
 
 
-def test_umeyama_recovers_known_rigid_transform_exactly():
-    src = RNG.normal(size=(50, 3)) * 10
+def test_ate_alignment_recovers_known_rigid_transform_exactly():
+    gt = RNG.normal(size=(50, 3)) * 10
     r, t = random_rotation(), np.array([3.0, -2.0, 7.5])
-    dst = src @ r.T + t
-    r_est, t_est, s = umeyama(src, dst)
-    assert s == 1.0
-    np.testing.assert_allclose(r_est, r, atol=1e-12)
-    np.testing.assert_allclose(t_est, t, atol=1e-10)
-    assert np.linalg.det(r_est) == pytest.approx(1.0)
+    est = (gt - t) @ r  # gt = R est + t
+    stats, _, t_align, s = ate(est, gt)
+    assert s == 1.0 and stats["rmse"] < 1e-9
+    np.testing.assert_allclose(t_align[:3, :3], r, atol=1e-12)
+    np.testing.assert_allclose(t_align[:3, 3], t, atol=1e-10)
 
 
-def test_umeyama_with_scale_recovers_similarity():
-    src = RNG.normal(size=(30, 3))
+def test_ate_with_scale_recovers_similarity():
+    gt = RNG.normal(size=(30, 3))
     r, t, s = random_rotation(), np.array([1.0, 2.0, 3.0]), 2.5
-    r_est, t_est, s_est = umeyama(src, s * src @ r.T + t, with_scale=True)
-    np.testing.assert_allclose(r_est, r, atol=1e-12)
-    np.testing.assert_allclose(t_est, t, atol=1e-10)
-    assert s_est == pytest.approx(s, rel=1e-12)
+    est = (gt - t) @ r / s  # gt = s R est + t
+    stats, _, t_align, s_est = ate(est, gt, with_scale=True)
+    assert s_est == pytest.approx(s, rel=1e-12) and stats["rmse"] < 1e-9
+    np.testing.assert_allclose(t_align[:3, :3], r, atol=1e-12)
+    np.testing.assert_allclose(t_align[:3, 3], t, atol=1e-10)
 
 
-def test_umeyama_never_returns_a_reflection():
-    src = RNG.normal(size=(20, 3))
-    mirrored = src * np.array([1.0, 1.0, -1.0])
-    r_est, _, _ = umeyama(src, mirrored)
-    assert np.linalg.det(r_est) == pytest.approx(1.0)
+def test_ate_never_aligns_by_a_reflection():
+    gt = RNG.normal(size=(20, 3))
+    stats, _, t_align, _ = ate(gt * np.array([1.0, 1.0, -1.0]), gt)
+    assert np.linalg.det(t_align[:3, :3]) == pytest.approx(1.0)
+    assert stats["rmse"] > 0.1  # a mirror image cannot be aligned away
 
 
-def test_umeyama_rejects_bad_shapes():
-    with pytest.raises(ValueError):
-        umeyama(np.zeros((2, 3)), np.zeros((2, 3)))
-    with pytest.raises(ValueError):
-        umeyama(np.zeros((5, 3)), np.zeros((4, 3)))
+def test_ate_rejects_bad_input_with_a_tool_error():
+    with pytest.raises(ToolError):
+        ate(np.zeros((5, 3)), np.zeros((4, 3)))
+    with pytest.raises(ToolError):
+        ate(np.zeros((5, 2)), np.zeros((5, 2)))
+    with pytest.raises(ToolError):  # all samples at one point: no alignment exists
+        ate(np.zeros((5, 3)), np.ones((5, 3)))
 
 
 def test_ate_is_zero_for_rigidly_transformed_copy():
@@ -110,7 +113,7 @@ def test_so3_log_inverts_exp(angle):
     axis /= np.linalg.norm(axis)
     phi = axis * angle
     np.testing.assert_allclose(so3_exp(so3_log(so3_exp(phi))), so3_exp(phi), atol=1e-9)
-    assert rotation_angle(so3_exp(phi)) == pytest.approx(angle, abs=1e-7)
+    assert np.linalg.norm(so3_log(so3_exp(phi))) == pytest.approx(angle, abs=1e-7)
 
 
 @pytest.mark.parametrize("u", [[1.0, 0.2, -0.3, 0.0, 0.0, 0.0], [1.0, 0.2, -0.3, 0.1, -0.4, 0.9],
@@ -142,4 +145,13 @@ def test_dead_reckoning_drives_a_circle():
     np.testing.assert_allclose(poses[0], np.eye(4))
     radii = np.linalg.norm(poses[:, :2, 3] - np.array([0.0, 10.0]), axis=1)
     np.testing.assert_allclose(radii, 10.0, atol=1e-9)
-    assert rotation_angle(poses[-1][:3, :3]) == pytest.approx(1.0)
+    assert np.linalg.norm(so3_log(poses[-1][:3, :3])) == pytest.approx(1.0)
+
+
+def test_nearest_rotation_repairs_a_rounded_rotation():
+    r = random_rotation()
+    rounded = np.array([[float(f"{x:.6e}") for x in row] for row in r])  # KITTI's 7 digits
+    assert np.abs(rounded.T @ rounded - np.eye(3)).max() > 1e-9
+    fixed = nearest_rotation(rounded)
+    np.testing.assert_allclose(fixed.T @ fixed, np.eye(3), atol=1e-14)
+    np.testing.assert_allclose(fixed, r, atol=1e-6)

@@ -1,9 +1,13 @@
 """Checks against the seed datasets in ../shared/data (skipped when absent)."""
 
+import json
+
 import numpy as np
 import pytest
 
+from conftest import evo_rmse
 from vislam_tools import lcmtypes
+from vislam_tools.evaluate import main as evaluate
 from vislam_tools.geometry import integrate_dead_reckoning
 from vislam_tools.metrics import associate, ate
 from vislam_tools.npz2lcm import convert
@@ -24,6 +28,20 @@ def test_dead_reckoning_ate_on_0027_matches_readme(shared_data):
     np.testing.assert_allclose(gt.poses[0], np.eye(4), atol=1e-6)
     stats, _, _, _ = ate(poses[e, :3, 3], gt.positions[g])
     assert stats["rmse"] == pytest.approx(16.4, abs=0.5)  # README: about 16 m
+
+
+def test_evo_ape_on_the_written_ground_truth_agrees_on_0027(shared_data, tmp_path):
+    gt_path = shared_data / "gt" / "kitti_odometry_07.txt"
+    if not gt_path.is_file():
+        pytest.skip(f"ground truth {gt_path} absent")
+    npz = shared_data / "0027.npz"
+    dr, gt, js = tmp_path / "dr.tum", tmp_path / "gt.tum", tmp_path / "ate.json"
+    assert evaluate(["deadreckon", "--data", str(npz), "--out", str(dr)]) == 0
+    assert evaluate(["gt", "--gt", str(gt_path), "--calib", str(npz), "--out", str(gt)]) == 0
+    assert evaluate(["ate", "--estimate", str(dr), "--gt", str(gt_path), "--calib", str(npz), "--json", str(js)]) == 0
+    res = json.loads(js.read_text())
+    assert res["pairs"] == 1101
+    assert evo_rmse("evo_ape", ["tum", gt, dr, "-a"], tmp_path) == pytest.approx(res["ate"]["rmse"], abs=1e-6)
 
 
 def test_npz2lcm_converts_the_start_of_0027(vislam_types, shared_data, tmp_path):

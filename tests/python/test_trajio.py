@@ -71,6 +71,17 @@ def test_kitti_parsing_with_and_without_time(tmp_path):
     assert sniff_trajectory_format(no_time) == "kitti"
 
 
+def test_kitti_rotations_are_made_exact(tmp_path):
+    poses = random_poses(5)
+    path = tmp_path / "k.txt"
+    path.write_text("".join(" ".join(f"{x:.6e}" for x in p[:3, :4].reshape(-1)) + "\n" for p in poses))
+    _, parsed = read_kitti(path)
+    r = parsed[:, :3, :3]
+    np.testing.assert_allclose(np.einsum("nji,njk->nik", r, r), np.broadcast_to(np.eye(3), r.shape), atol=1e-14)
+    np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-14)
+    np.testing.assert_allclose(parsed, poses, atol=1e-5)
+
+
 def test_kitti_rejects_mixed_column_counts(tmp_path):
     p = np.eye(4)
     path = tmp_path / "k.txt"

@@ -49,6 +49,17 @@ wait_recorded() {
   return 1
 }
 
+# wait_line FILE PATTERN SECONDS: until FILE has a line matching PATTERN; 1 (and a line) on timeout.
+wait_line() {
+  local deadline=$((SECONDS + $3))
+  while [ "$SECONDS" -le "$deadline" ]; do
+    grep -q "$2" "$1" 2>/dev/null && return 0
+    sleep 0.05 # the poll period, not a guess at when something happens
+  done
+  echo "      timed out waiting for '$2' in $1"
+  return 1
+}
+
 # wait_exit PID SECONDS: waits for PID to end; its exit status in $WAIT_RC (124 on timeout).
 wait_exit() {
   local i

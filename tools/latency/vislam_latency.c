@@ -26,6 +26,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <sys/prctl.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -33,6 +35,7 @@
 
 #include "vislam/vislam.h"
 #include "vl_channels.h"
+#include "vl_cli.h"
 #include "vl_clock.h"
 #include "vl_config_file.h"
 #include "vl_jitter.h"
@@ -114,10 +117,12 @@ static void usage(FILE *f)
                "  --no-probe          no jitter probe\n"
                "  --json FILE         the figures as JSON (with the samples the plot draws)\n"
                "  --plot FILE.png     CDFs of the step and end-to-end latency with the jitter floor\n"
-               "                      (Python: $VISLAM_PYTHON, else the project's .venv, else python3)\n"
+               "                      (Python: $VISLAM_PYTHON, else the project's .venv, else python3;\n"
+               "                      vislam_tools from $VISLAM_TOOLS_DIR, else the source tree's tools/)\n"
                "  --work-dir DIR      where the end-to-end pass keeps vislamd's and the replay's outputs\n"
                "                      (default: a new directory under $TMPDIR, removed at the end)\n"
                "  --quiet             only the summary\n"
+               "  --version           print the version and exit\n"
                "  --help              this text\n"
                "\n"
                "Exit status: 0 measured; 1 the end-to-end pass got no (or not every) pose back, or a helper\n"
@@ -153,6 +158,8 @@ static int parse_args(int argc, char **argv, options_t *o)
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             exit(0);
+        } else if (strcmp(a, "--version") == 0) {
+            exit(vl_cli_print_version(stdout, "vislam-latency") == 0 ? 0 : 1);
         } else if (strcmp(a, "--load") == 0) {
             o->load = 1;
         } else if (strcmp(a, "--no-e2e") == 0) {
@@ -478,28 +485,36 @@ static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double
 
 /* ---- child processes ---- */
 
+/* In a child before exec: its CPU and priority; a refusal is a warning in the child's log. */
 static void pin_self(int cpu, int priority)
 {
-    cpu_set_t set;
-    CPU_ZERO(&set);
-    CPU_SET(cpu, &set);
-    (void)sched_setaffinity(0, sizeof(set), &set);
-    if (priority > 0) {
-        struct sched_param sp;
-        memset(&sp, 0, sizeof(sp));
-        sp.sched_priority = priority;
-        (void)sched_setscheduler(0, SCHED_FIFO, &sp);
+    char msg[256];
+    if (vl_rt_set_affinity(cpu, msg, sizeof(msg)) != VL_RT_OK) {
+        fprintf(stderr, "vislam-latency: warning: %s\n", msg);
+    }
+    if (priority > 0 && vl_rt_set_fifo(priority, msg, sizeof(msg)) != VL_RT_OK) {
+        fprintf(stderr, "vislam-latency: warning: %s\n", msg);
     }
 }
 
-/* Starts argv with stdout and stderr to log_path (NULL: inherited), pinned to cpu (-1: not). */
+/* In a child: it ends with this program, so that no helper outlives a killed measurement. */
+static void die_with_parent(void)
+{
+    (void)prctl(PR_SET_PDEATHSIG, SIGTERM);
+}
+
+/* Starts argv with stdout and stderr to log_path (NULL: inherited), pinned to cpu (-1: not); -1 if fork failed. */
 static pid_t spawn(char *const argv[], const char *log_path, int cpu, int priority)
 {
     fflush(NULL);
     const pid_t pid = fork();
     if (pid != 0) {
+        if (pid < 0) {
+            fprintf(stderr, "vislam-latency: cannot start %s: %s\n", argv[0], strerror(errno));
+        }
         return pid;
     }
+    die_with_parent();
     if (log_path != NULL) {
         FILE *f = freopen(log_path, "w", stderr);
         if (f != NULL) {
@@ -514,10 +529,13 @@ static pid_t spawn(char *const argv[], const char *log_path, int cpu, int priori
     _exit(127);
 }
 
-/* Waits for pid; its exit status, or 128 + signal. */
+/* Waits for pid; its exit status, 128 + signal, or -1 (no such child). */
 static int wait_child(pid_t pid)
 {
     int status = 0;
+    if (pid <= 0) {
+        return -1;
+    }
     while (waitpid(pid, &status, 0) < 0) {
         if (errno != EINTR) {
             return -1;
@@ -534,6 +552,7 @@ static pid_t start_load(int cpu)
     if (pid != 0) {
         return pid;
     }
+    die_with_parent();
     pin_self(cpu, 0);
     volatile unsigned char *buf = (volatile unsigned char *)malloc(LOAD_BYTES);
     unsigned v = 1;
@@ -685,7 +704,9 @@ static void run_e2e(const char *dir, e2e_t *e)
         const pid_t daemon = spawn((char *const *)dargv, dlog, -1, 0);
         const pid_t player = spawn((char *const *)rargv, rlog, opt.other_cpu, opt.rt_priority);
         const int rc = wait_child(player);
-        kill(daemon, SIGTERM);
+        if (daemon > 0) {
+            kill(daemon, SIGTERM);
+        }
         const int drc = wait_child(daemon);
         const long long expected = json_int(json, "frames_expected");
         const long long returned = json_int(json, "frames_returned");
@@ -694,23 +715,21 @@ static void run_e2e(const char *dir, e2e_t *e)
                     "vislam-latency: end-to-end pass %d: %lld of %lld poses back (replay exit %d, vislamd exit %d)\n",
                     pass + 1, returned, expected, rc, drc);
         }
-        if (expected < 0 || returned < 0) {
-            fprintf(stderr, "vislam-latency: the replay of pass %d wrote no summary; see %s\n", pass + 1, rlog);
-            e->failed = 1;
-            break;
+        if (expected > 0 && returned > 0) {
+            e->expected += expected;
+            e->returned += returned;
+            read_samples(samples, e);
+            continue;
         }
-        e->expected += expected;
-        e->returned += returned;
-        read_samples(samples, e);
-        if (returned == 0) {
-            fprintf(stderr,
-                    "vislam-latency: NO POSES came back from vislamd (LCM url %s): is multicast routed? On a host\n"
-                    "  without a multicast route run inside `unshare --net` after `ip link set lo up multicast on;\n"
-                    "  ip route add 224.0.0.0/4 dev lo`, or pass a working --lcm-url. See %s and %s\n",
-                    opt.lcm_url != NULL ? opt.lcm_url : "default", dlog, rlog);
-            e->failed = 1;
-            break;
-        }
+        fprintf(stderr,
+                "vislam-latency: NO POSES came back from vislamd (LCM url %s)%s: is multicast routed? On a\n"
+                "  host without a multicast route run inside `unshare --net` after `ip link set lo up multicast\n"
+                "  on; ip route add 224.0.0.0/4 dev lo`, or pass a working --lcm-url. See %s and %s\n",
+                opt.lcm_url != NULL ? opt.lcm_url : "default", expected < 0 ? " and the replay wrote no summary" : "",
+                dlog, rlog);
+        e->expected += expected > 0 ? expected : 0;
+        e->failed = 1;
+        break;
     }
 }
 
@@ -734,7 +753,7 @@ static pid_t start_cyclictest(const char *out, int cpus, int priority)
     snprintf(threads, sizeof(threads), "-t%d", cpus);
     snprintf(prio, sizeof(prio), "-p%d", priority > 0 ? priority + 1 : 1);
     snprintf(affinity, sizeof(affinity), "-a0-%d", cpus - 1);
-    const char *argv[] = {bin, "-q", "-m", "-i1000", threads, affinity, prio, NULL};
+    const char *argv[] = {bin, "-q", "-m", "-i1000", "-d0", threads, affinity, prio, NULL};
     return spawn((char *const *)argv, out, -1, 0);
 }
 
@@ -820,7 +839,8 @@ static int run_plot(const char *json, const char *png)
 {
     char python[PATH_LEN], tools[PATH_LEN], pythonpath[PATH_LEN + 16];
     const char *env_python = getenv("VISLAM_PYTHON");
-    snprintf(tools, sizeof(tools), "%s", VL_TOOLS_DIR);
+    const char *env_tools = getenv("VISLAM_TOOLS_DIR");
+    snprintf(tools, sizeof(tools), "%s", env_tools != NULL && env_tools[0] != '\0' ? env_tools : VL_TOOLS_DIR);
     if (env_python != NULL && env_python[0] != '\0') {
         snprintf(python, sizeof(python), "%s", env_python);
     } else {
@@ -850,7 +870,8 @@ typedef struct {
     double work_p50, work_max, work_mean;
     const step_t *costliest; /* slowest step */
     const step_t *heaviest;  /* step with the most work */
-    uint64_t overruns;
+    uint64_t overruns;       /* in-process steps over the budget */
+    uint64_t e2e_overruns;   /* end-to-end latencies over the budget */
     long budget_us;
     uint32_t window;
     double callgrind;
@@ -888,13 +909,19 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
         fprintf(stderr, "vislam-latency: cannot write %s: %s\n", path, strerror(errno));
         return -1;
     }
-    fprintf(f, "{\n  \"log\": \"%s\",\n  \"window\": %u,\n  \"passes\": %d,\n  \"frames_per_pass\": %zu,\n",
-            opt.log_path, (unsigned)res->window, opt.passes, lg->frames);
+    /* The path as given, or null when it would need escaping. */
+    int plain = 1;
+    for (const char *c = opt.log_path; *c != '\0'; ++c) {
+        plain &= *c != '"' && *c != '\\' && (unsigned char)*c >= 0x20;
+    }
+    fprintf(f, plain ? "{\n  \"log\": \"%s\",\n" : "{\n  \"log\": null,\n", opt.log_path);
+    fprintf(f, "  \"window\": %u,\n  \"passes\": %d,\n  \"frames_per_pass\": %zu,\n", (unsigned)res->window, opt.passes,
+            lg->frames);
     fprintf(f, "  \"rate\": \"%s\",\n  \"cpu\": %d,\n  \"other_cpu\": %d,\n  \"rt_priority\": %d,\n",
             opt.rate_max ? "max" : "sensor", opt.cpu, opt.other_cpu, opt.rt_priority);
     fprintf(f, "  \"rt_granted\": %s,\n  \"load\": %s,\n  \"steps\": %zu,\n  \"budget_us\": %ld,\n",
             res->rt_granted ? "true" : "false", opt.load ? "true" : "false", nsteps, res->budget_us);
-    fprintf(f, "  \"overruns\": %" PRIu64 ",\n", res->overruns);
+    fprintf(f, "  \"overruns\": %" PRIu64 ",\n  \"e2e_overruns\": %" PRIu64 ",\n", res->overruns, res->e2e_overruns);
     json_summary(f, "step_us", &res->step, ",");
     json_summary(f, "propagate_us", &res->prop, ",");
     json_summary(f, "e2e_us", opt.e2e ? &res->e2e : NULL, ",");
@@ -976,6 +1003,7 @@ static void find_self_dir(const char *argv0)
    the plot) choose their own CPU and priority instead of inheriting the measurement's. */
 static void release_rt(int cpus)
 {
+    (void)munlockall();
     struct sched_param sp;
     memset(&sp, 0, sizeof(sp));
     (void)sched_setscheduler(0, SCHED_OTHER, &sp);
@@ -1111,6 +1139,9 @@ int main(int argc, char **argv)
     res.heaviest = &steps[heaviest];
     res.step = summarize(step_us, nsteps);
     res.prop = summarize(prop_us, nprop);
+    for (size_t i = 0; i < e2e.n; ++i) {
+        res.e2e_overruns += e2e.us[i] > (double)res.budget_us;
+    }
     res.e2e = summarize(e2e.us, e2e.n);
     const summary_t w = summarize(work, nsteps);
     res.work_p50 = w.p50;
@@ -1144,7 +1175,8 @@ int main(int argc, char **argv)
     if (res.cyclictest_max >= 0) {
         fprintf(stderr, "  cyclictest in the same run: max %ld us\n", res.cyclictest_max);
     }
-    fprintf(stderr, "  budget %ld us: %" PRIu64 " overrun(s)\n", res.budget_us, res.overruns);
+    fprintf(stderr, "  budget %ld us: %" PRIu64 " step(s) over it in-process, %" PRIu64 " end to end\n", res.budget_us,
+            res.overruns, res.e2e_overruns);
     fprintf(stderr, "  work per step (core's count): p50 %.3g  max %.3g flops (max/p50 %.2f)\n", res.work_p50,
             res.work_max, res.work_p50 > 0 ? res.work_max / res.work_p50 : 0.0);
     const step_t *c = res.costliest;
@@ -1175,7 +1207,10 @@ int main(int argc, char **argv)
     if (opt.e2e && (e2e.failed || e2e.returned < e2e.expected || e2e.expected == 0)) {
         rc = EXIT_INCOMPLETE;
     }
-    if (made_dir) {
+    const int helper_failed = (opt.e2e && e2e.failed) || (opt.callgrind && res.callgrind <= 0);
+    if (made_dir && helper_failed) {
+        fprintf(stderr, "vislam-latency: the helpers' logs are kept in %s\n", dir);
+    } else if (made_dir) {
         remove_work_dir(dir);
     }
     free(steps);

@@ -34,6 +34,7 @@
 #include <lcm/lcm.h>
 
 #include "vl_channels.h"
+#include "vl_cli.h"
 #include "vl_clock.h"
 #include "vl_latency.h"
 #include "vl_log_guard.h"
@@ -75,6 +76,7 @@ typedef struct {
     long max_timeouts;
     const char *filter[MAX_FILTER];
     int num_filter;
+    int all_channels; /* every channel of the log, not only the inputs */
     double speed;
     int max;
     int lockstep;
@@ -86,7 +88,7 @@ typedef struct {
 
 typedef struct {
     char name[CHANNEL_MAX];
-    uint64_t sent;
+    uint64_t events; /* sent, or skipped */
 } channel_count_t;
 
 /* An input this replay published, which a pose may answer. */
@@ -116,6 +118,8 @@ typedef struct {
     /* sending */
     channel_count_t channels[MAX_CHANNELS];
     int num_channels;
+    channel_count_t skipped[MAX_CHANNELS]; /* events of the channels not replayed */
+    int num_skipped;
     uint64_t sent, other_sent, publish_errors, filtered, events_read;
     int64_t first_log_utime, last_log_utime;
     /* receiving */
@@ -151,7 +155,11 @@ static void usage(FILE *f)
             "  --timeout-ms N        lockstep and --wait-for: how long to wait (default 5000)\n"
             "  --max-timeouts N      lockstep: give up after N timeouts in a row (default %d; 0 = never,\n"
             "                        to see whether the daemon recovers from a fault)\n"
-            "  --channels A,B,...    publish only these channels (default: every channel in the log)\n"
+            "  --channels A,B,...    publish only these channels (default: the input channels, those of\n"
+            "                        --imu-channel, --features-channel and --calib-channel)\n"
+            "  --all-channels        publish every channel of the log, also the recorded outputs of a\n"
+            "                        daemon (a log from lcm-logger holds its " VL_CHANNEL_POSE ", " VL_CHANNEL_BOT_POSE
+            ", ...)\n"
             "  --features-channel C  frames that lockstep waits for (default " VL_CHANNEL_FEATURES ")\n"
             "  --pose-channel C      poses counted and awaited (default " VL_CHANNEL_POSE ")\n"
             "  --wait-for C          before playing, wait until a message arrives on C (e.g.\n"
@@ -169,8 +177,13 @@ static void usage(FILE *f)
             "  --summary-json FILE   also write the summary as JSON\n"
             "  --latency-samples FILE  lockstep: each frame's end-to-end latency, us, one per line\n"
             "  --quiet               no progress line and no summary on stderr\n"
+            "  --version             print the version and exit\n"
             "  --help                this text\n"
             "\n"
+            "By default only the inputs of the estimator are replayed: a log recorded with lcm-logger\n"
+            "also holds the poses and statuses of the daemon that ran then, which would mislead a\n"
+            "listener (and could answer --lockstep in place of the daemon). The events skipped are\n"
+            "counted per channel in the summary.\n"
             "A progress line is shown when stderr is a terminal. The summary gives the messages sent,\n"
             "poses received and, in lockstep, the end-to-end latency percentiles.\n"
             "A pose counts as an answer only if it answers an input this replay published (same utime\n"
@@ -204,6 +217,8 @@ static int parse_args(int argc, char **argv, options_t *o)
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             exit(0);
+        } else if (strcmp(a, "--version") == 0) {
+            exit(vl_cli_print_version(stdout, "vislam-replay") == 0 ? 0 : EXIT_INCOMPLETE);
         } else if (strcmp(a, "--max") == 0) {
             o->max = 1;
             continue;
@@ -212,6 +227,9 @@ static int parse_args(int argc, char **argv, options_t *o)
             continue;
         } else if (strcmp(a, "--quiet") == 0) {
             o->quiet = 1;
+            continue;
+        } else if (strcmp(a, "--all-channels") == 0) {
+            o->all_channels = 1;
             continue;
         } else if (a[0] != '-' || a[1] == '\0') {
             if (o->log_path != NULL) {
@@ -311,6 +329,10 @@ static int parse_args(int argc, char **argv, options_t *o)
         fprintf(stderr, "vislam-replay: no LOG given (see --help)\n");
         return -1;
     }
+    if (o->all_channels && o->num_filter > 0) {
+        fprintf(stderr, "vislam-replay: --all-channels and --channels exclude each other\n");
+        return -1;
+    }
     if (o->max && o->speed != 1.0) {
         fprintf(stderr, "vislam-replay: --max and --speed exclude each other\n");
         return -1;
@@ -318,10 +340,12 @@ static int parse_args(int argc, char **argv, options_t *o)
     return 0;
 }
 
+/* --channels if given, else every channel with --all-channels, else the three inputs. */
 static int channel_selected(const options_t *o, const char *channel)
 {
     if (o->num_filter == 0) {
-        return 1;
+        return o->all_channels || strcmp(channel, o->imu_channel) == 0 || strcmp(channel, o->features_channel) == 0 ||
+               strcmp(channel, o->calib_channel) == 0;
     }
     for (int i = 0; i < o->num_filter; ++i) {
         if (strcmp(o->filter[i], channel) == 0) {
@@ -331,21 +355,52 @@ static int channel_selected(const options_t *o, const char *channel)
     return 0;
 }
 
+/* One more event on channel in counts; 0, or -1 when the table is full (then counted elsewhere). */
+static int count_channel(channel_count_t *counts, int *num, const char *channel)
+{
+    for (int i = 0; i < *num; ++i) {
+        if (strcmp(counts[i].name, channel) == 0) {
+            counts[i].events++;
+            return 0;
+        }
+    }
+    if (*num == MAX_CHANNELS) {
+        return -1;
+    }
+    channel_count_t *c = &counts[(*num)++];
+    snprintf(c->name, sizeof(c->name), "%s", channel);
+    c->events = 1;
+    return 0;
+}
+
 static void count_sent(replay_t *r, const char *channel)
 {
     r->sent++;
-    for (int i = 0; i < r->num_channels; ++i) {
-        if (strcmp(r->channels[i].name, channel) == 0) {
-            r->channels[i].sent++;
-            return;
-        }
-    }
-    if (r->num_channels < MAX_CHANNELS) {
-        channel_count_t *c = &r->channels[r->num_channels++];
-        snprintf(c->name, sizeof(c->name), "%s", channel);
-        c->sent = 1;
-    } else {
+    if (count_channel(r->channels, &r->num_channels, channel) != 0) {
         r->other_sent++;
+    }
+}
+
+/* What is replayed, said before anything is sent (the warning even with --quiet). */
+static void print_selection(const options_t *o)
+{
+    if (o->quiet) {
+        /* nothing but the warning below */
+    } else if (o->num_filter > 0) {
+        fprintf(stderr, "vislam-replay: replaying the channels given by --channels; skipping the others\n");
+    } else if (o->all_channels) {
+        fprintf(stderr, "vislam-replay: replaying every channel of the log (--all-channels)\n");
+    } else {
+        fprintf(stderr,
+                "vislam-replay: replaying the input channels %s, %s, %s; skipping events on other channels "
+                "(--all-channels replays them)\n",
+                o->imu_channel, o->features_channel, o->calib_channel);
+    }
+    if (o->lockstep && channel_selected(o, o->pose_channel)) {
+        fprintf(stderr,
+                "vislam-replay: warning: the log's own poses on %s are replayed too and can answer "
+                "--lockstep in place of the daemon\n",
+                o->pose_channel);
     }
 }
 
@@ -526,10 +581,15 @@ static void print_summary(const replay_t *r, double wall_s, int interrupted)
             r->opt.log_path, r->sent, wall_s, log_s, wall_s > 0 ? log_s / wall_s : 0.0,
             interrupted ? " - interrupted" : "");
     for (int i = 0; i < r->num_channels; ++i) {
-        fprintf(stderr, "  %-24s %8" PRIu64 "\n", r->channels[i].name, r->channels[i].sent);
+        fprintf(stderr, "  %-24s %8" PRIu64 "\n", r->channels[i].name, r->channels[i].events);
     }
     if (r->filtered != 0) {
-        fprintf(stderr, "  (%" PRIu64 " events left out by --channels)\n", r->filtered);
+        fprintf(stderr, "  skipped %" PRIu64 " events on other channels (%s):", r->filtered,
+                r->opt.num_filter > 0 ? "not in --channels" : "not inputs; --all-channels replays them");
+        for (int i = 0; i < r->num_skipped; ++i) {
+            fprintf(stderr, " %s %" PRIu64, r->skipped[i].name, r->skipped[i].events);
+        }
+        fputc('\n', stderr);
     }
     if (r->publish_errors != 0) {
         fprintf(stderr, "  publish errors: %" PRIu64 "\n", r->publish_errors);
@@ -562,7 +622,11 @@ static int write_json(const replay_t *r, double wall_s, int interrupted)
     }
     fprintf(f, "{\n  \"messages_sent\": %" PRIu64 ",\n  \"channels\": {", r->sent);
     for (int i = 0; i < r->num_channels; ++i) {
-        fprintf(f, "%s\n    \"%s\": %" PRIu64, i == 0 ? "" : ",", r->channels[i].name, r->channels[i].sent);
+        fprintf(f, "%s\n    \"%s\": %" PRIu64, i == 0 ? "" : ",", r->channels[i].name, r->channels[i].events);
+    }
+    fprintf(f, "\n  },\n  \"events_skipped\": %" PRIu64 ",\n  \"channels_skipped\": {", r->filtered);
+    for (int i = 0; i < r->num_skipped; ++i) {
+        fprintf(f, "%s\n    \"%s\": %" PRIu64, i == 0 ? "" : ",", r->skipped[i].name, r->skipped[i].events);
     }
     fprintf(f, "\n  },\n  \"publish_errors\": %" PRIu64 ",\n", r->publish_errors);
     fprintf(f,
@@ -654,6 +718,7 @@ int main(int argc, char **argv)
         }
     }
 
+    print_selection(o);
     const int show_progress = !o->quiet && isatty(STDERR_FILENO);
     const int64_t wall_start = vl_clock_monotonic_us();
     int64_t start = 0;  /* monotonic time of the first event */
@@ -681,6 +746,7 @@ int main(int argc, char **argv)
         r->events_read++;
         if (!channel_selected(o, ev->channel)) {
             r->filtered++;
+            count_channel(r->skipped, &r->num_skipped, ev->channel);
             lcm_eventlog_free_event(ev);
             continue;
         }

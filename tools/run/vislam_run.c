@@ -16,6 +16,7 @@
 #include <string.h>
 
 #include "vislam/vislam.h"
+#include "vl_cli.h"
 #include "vl_clock.h"
 #include "vl_config_file.h"
 #include "vl_latency.h"
@@ -92,6 +93,7 @@ static void usage(FILE *f)
             "  --timing             per-step wall time of vl_update and vl_propagate on stderr\n"
             "  --quiet              no summary and no core warnings on stderr\n"
             "  --print-config       print the effective configuration (INI) to stdout and exit\n"
+            "  --version            print the version and exit\n"
             "  --help               this text\n"
             "\n"
             "Every event header is checked before it is read: a damaged spot (bad sync word, absurd\n"
@@ -112,6 +114,8 @@ static int parse_args(int argc, char **argv, options_t *o)
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             exit(0);
+        } else if (strcmp(a, "--version") == 0) {
+            exit(vl_cli_print_version(stdout, "vislam-run") == 0 ? 0 : 1);
         } else if (strcmp(a, "--quiet") == 0) {
             o->quiet = 1;
         } else if (strcmp(a, "--timing") == 0) {
@@ -197,7 +201,9 @@ static void write_covariance_line(FILE *f, int64_t utime, const vl_pose_t *pose)
     const uint64_t mag = utime < 0 ? (uint64_t)0 - (uint64_t)utime : (uint64_t)utime;
     fprintf(f, "%s%llu.%06llu", sign, (unsigned long long)(mag / 1000000u), (unsigned long long)(mag % 1000000u));
     for (int i = 0; i < 6; ++i) {
-        fprintf(f, " %.9g", pose->covariance[i * 6 + i]);
+        char v[VL_CLI_DOUBLE_MAX];
+        vl_cli_format_double(v, sizeof(v), pose->covariance[i * 6 + i]);
+        fprintf(f, " %s", v);
     }
     fputc('\n', f);
 }
@@ -432,8 +438,7 @@ int main(int argc, char **argv)
         return EXIT_USAGE;
     }
     if (o.print_config) {
-        vl_config_write_ini(stdout, &cfg, info.has_calibration);
-        return 0;
+        return vl_config_write_ini(stdout, &cfg, info.has_calibration) == 0 ? 0 : 1;
     }
 
     static sinks_t sinks;

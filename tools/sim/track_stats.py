@@ -236,10 +236,11 @@ def report(name, D, W):
         print(f"  dt into stale frames: mean {dt[ks - 1].mean():.4f} s; overall mean {dt.mean():.4f} s")
 
     new_elsewhere = sum(int((valid[:, k] & ~valid[:, k - 1]).sum()) for k in range(1, T) if not stale[k])
-    print(f"  new ids on frames that are not stale: {new_elsewhere}; observations on the frame before a "
-          f"stale frame: median {np.median(n[ks - 1]):.0f} max {n[ks - 1].max()} (every frame: median "
-          f"{np.median(n):.0f}) -> the tracker detects when its tracks fall under a threshold, and its "
-          f"detection frames are the stale ones")
+    print(f"  new ids on frames that are not stale: {new_elsewhere}")
+    if len(ks):
+        print(f"  observations on the frame before a stale frame: median {np.median(n[ks - 1]):.0f} "
+              f"max {n[ks - 1].max()} (every frame: median {np.median(n):.0f}) -> the tracker detects when "
+              f"its tracks fall under a threshold, and its detection frames are the stale ones")
     per_frame, _ = jumps(D, stale)
     pairs = sum(p for _, p, _ in per_frame)
     nj = sum(j for _, _, j in per_frame)
@@ -278,7 +279,8 @@ def report(name, D, W):
     print(f"  isolated >10 px errors inside good tracks: {single} ({pct(single / etot):.2f}% of obs)")
 
     classify_steps(D, W, stale)
-    stale_geometry(D, W, stale)
+    if stale.any():
+        stale_geometry(D, W, stale)
 
 
 def classify_steps(D, W, stale):

@@ -14,6 +14,7 @@
 #include <string.h>
 
 #include "vl_channels.h"
+#include "vl_cli.h"
 #include "vl_msg.h"
 #include "vl_sim.h"
 #include "vl_trajectory_file.h"
@@ -40,6 +41,9 @@ static void usage(FILE *f)
                "  --angular-noise RPS     angular velocity std [0.05]\n"
                "  --linear-offset X,Y,Z   constant linear velocity offset, m/s [0,0,0]\n"
                "  --angular-offset X,Y,Z  constant angular velocity offset, rad/s [0.005,0.005,0.005]\n"
+               "  --interval-velocities   the velocity is constant from one step to the next (each\n"
+               "                          sample holds); default: it varies smoothly and each sample\n"
+               "                          is the instantaneous velocity at its step\n"
                "  --speed MPS             mean forward speed [8]\n"
                "  --points-per-meter N    world point density along the path [2.5]\n"
                "  --max-observations N    observations per frame, 1..256 [256]\n"
@@ -65,7 +69,50 @@ static void usage(FILE *f)
                "                          observations use (the log carries the nominal one) [0,0,0]\n"
                "  --calib-translation-error X,Y,Z  m, added to that cam_T_imu's translation [0,0,0]\n"
                "  --baseline-error REL    relative error of the baseline the observations use [0]\n"
-               "  --quiet                 no summary on stderr\n");
+               "  --quiet                 no summary on stderr\n"
+               "  --version               print the version and exit\n"
+               "  --help                  this text\n");
+}
+
+/* Whether a takes a value: the options of the chain in main, checked before the value is taken,
+   so that an unknown option is named as such and not as one missing its value. */
+static int takes_value(const char *a)
+{
+    static const char *const names[] = {"--out",
+                                        "--truth",
+                                        "--truth-map",
+                                        "--steps",
+                                        "--seed",
+                                        "--noise-seed",
+                                        "--pixel-noise",
+                                        "--linear-noise",
+                                        "--angular-noise",
+                                        "--linear-offset",
+                                        "--angular-offset",
+                                        "--speed",
+                                        "--points-per-meter",
+                                        "--max-observations",
+                                        "--stale-probability",
+                                        "--detect-below",
+                                        "--detect-new",
+                                        "--reassoc-probability",
+                                        "--reassoc-fraction",
+                                        "--reassoc-radius",
+                                        "--moving-fraction",
+                                        "--moving-speed",
+                                        "--mismatch-probability",
+                                        "--far-fraction",
+                                        "--far-disparity",
+                                        "--calib-rotation-error",
+                                        "--calib-translation-error",
+                                        "--baseline-error",
+                                        "--start-utime"};
+    for (size_t k = 0; k < sizeof(names) / sizeof(names[0]); ++k) {
+        if (strcmp(a, names[k]) == 0) {
+            return 1;
+        }
+    }
+    return 0;
 }
 
 static int parse_double(const char *s, double *out)
@@ -178,15 +225,23 @@ int main(int argc, char **argv)
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             return 0;
+        } else if (strcmp(a, "--version") == 0) {
+            return vl_cli_print_version(stdout, "vislam-sim") == 0 ? 0 : 1;
         } else if (strcmp(a, "--quiet") == 0) {
             quiet = 1;
             continue;
         } else if (strcmp(a, "--realistic") == 0) {
             continue;
+        } else if (strcmp(a, "--interval-velocities") == 0) {
+            cfg.interval_velocities = 1;
+            continue;
+        }
+        if (!takes_value(a)) {
+            fprintf(stderr, "vislam-sim: unknown option %s (see --help)\n", a);
+            return 2;
         }
         if (v == NULL) {
-            fprintf(stderr, "vislam-sim: %s needs a value (or is unknown)\n", a);
-            usage(stderr);
+            fprintf(stderr, "vislam-sim: %s needs a value\n", a);
             return 2;
         }
         ++i;
@@ -355,7 +410,11 @@ int main(int argc, char **argv)
         for (id = first; id < n; ++id) {
             double x[3];
             if (vl_sim_landmark(&g_sim, id, x) == 0) {
-                fprintf(m, "%.6f %.6f %.6f %ld\n", x[0], x[1], x[2], (long)id);
+                char c[3][VL_CLI_DOUBLE_MAX];
+                for (int k = 0; k < 3; ++k) {
+                    vl_cli_format_double(c[k], sizeof(c[k]), x[k]);
+                }
+                fprintf(m, "%s %s %s %ld\n", c[0], c[1], c[2], (long)id);
             }
         }
         if (fclose(m) != 0) {

@@ -212,6 +212,7 @@ void vl_sim_config_default(vl_sim_config_t *cfg)
         cfg->linear_offset[i] = 0.0;
         cfg->angular_offset[i] = 0.005;
     }
+    cfg->interval_velocities = 0;
 }
 
 void vl_sim_config_realistic(vl_sim_config_t *cfg)
@@ -505,7 +506,17 @@ static void plan_one(vl_sim_t *sim)
     nxt->utime = cur->utime + dt_us;
     memcpy(nxt->R, cur->R, sizeof(cur->R));
     memcpy(nxt->p, cur->p, sizeof(cur->p));
-    vl_sim_integrate(nxt->R, nxt->p, cur->u, tau);
+    if (c->interval_velocities) {
+        vl_sim_integrate(nxt->R, nxt->p, cur->u, tau);
+    } else {
+        const double h = tau / VL_SIM_SUBSTEPS;
+        int j;
+        for (j = 0; j < VL_SIM_SUBSTEPS; ++j) {
+            double u[6];
+            velocity_profile(sim, s + ((double)j + 0.5) * h, u);
+            vl_sim_integrate(nxt->R, nxt->p, u, h);
+        }
+    }
 
     len = tau * sqrt(cur->u[0] * cur->u[0] + cur->u[1] * cur->u[1] + cur->u[2] * cur->u[2]);
     nxt->s = cur->s + len;

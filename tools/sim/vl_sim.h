@@ -7,14 +7,19 @@
  * points scattered around the road (never on it), denser near the road. Each step the simulator returns what the
  * real datasets hold for one step (see ../shared/data/README.md):
  * - an IMU sample: body velocities (IMU frame x forward, y left, z up) with
- *   Gaussian noise and constant offsets added, valid from this step's time to
- *   the next one's;
+ *   Gaussian noise and constant offsets added: the instantaneous velocity at
+ *   this step's time, as a real IMU or odometer measures it (or, with
+ *   interval_velocities, the constant velocity from this step to the next);
  * - a stereo frame: rectified pixel observations [u_left, v_left, u_right,
  *   v_right] of the visible points, with track ids;
  * - the true world-from-IMU pose at this step's time.
  *
- * The truth obeys w_T_i(t+1) = w_T_i(t) * exp(tau_t * hat(u_t)) exactly, with
- * u_t the noise-free velocities of step t, tau_t the difference of the two
+ * The vehicle's velocity u(s) is a smooth function of time. By default the
+ * truth integrates it between steps (VL_SIM_SUBSTEPS midpoint steps of the
+ * exponential map), and a step's sample is u at the step's time. With
+ * interval_velocities the velocity is constant between steps instead, and the
+ * truth obeys w_T_i(t+1) = w_T_i(t) * exp(tau_t * hat(u_t)) exactly. In both,
+ * u_t is the noise-free velocity of step t, tau_t the difference of the two
  * microsecond times in seconds, and w_T_i(0) = identity.
  *
  * Determinism: everything derives from two seeds through independent random
@@ -81,6 +86,8 @@ extern "C" {
 
 /** Planned poses held around the vehicle (ring size); bounds the lookahead at low speed. */
 #define VL_SIM_POSE_RING 1024
+/** Integration steps of the continuous motion between two sensor steps. */
+#define VL_SIM_SUBSTEPS 16
 /** World points alive at once; the oldest is recycled when a new one is needed. */
 #define VL_SIM_MAX_POINTS 8192
 /** Most recent track ids whose true position vl_sim_landmark can still return. */
@@ -131,6 +138,7 @@ typedef struct {
     double angular_noise;     /**< rad/s, std of each angular velocity sample and axis */
     double linear_offset[3];  /**< m/s, constant offset added to the linear velocities */
     double angular_offset[3]; /**< rad/s, constant offset added to the angular velocities */
+    int interval_velocities;  /**< 1: the velocity is constant between steps (the sample holds until the next) */
 
     /* Realistic conditions (see the file comment); 0 turns each one off. */
     double stale_probability;          /**< per frame after step 0, that the frame is stale */

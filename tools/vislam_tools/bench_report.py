@@ -10,6 +10,7 @@ the others.
   timing ROWS     label, stats.json (vislam-run --timing --stats-json)
   callgrind DIR   per-call costs from the dumps of callgrind --dump-after=vl_update
   daemon ROWS     label, vislamd stderr, vislam-replay --summary-json
+  latency ROWS    label, vislam-latency --json
   soak LOOPS LOG  bench.sh's loops.tsv (loop, log, daemon RSS in KiB, replay exit, summary json) and
                   the daemon's stderr
   conditions ROWS drive, velocities, K, truth, conditions summary.json, ate.json (dead reckoning),
@@ -286,6 +287,29 @@ def cmd_daemon(args):
     print(_table(header, rows))
 
 
+def cmd_latency(args):
+    """One row per vislam-latency --json run: step and end-to-end percentiles beside the jitter floor."""
+    header = ["run", "steps", "step min / p50 / p99 / p99.9 / max (us)", "end to end p50 / p99 / p99.9 / max (us)",
+              "poses back", "jitter floor p99 / max (us)", "overruns", "work p50 / max (Mflop)",
+              "costliest step: x median time / x median work"]
+    rows = []
+    for label, path in _rows(args.rows):
+        d = _load_json(path) or {}
+        st, e2e, jit, w = d.get("step_us") or {}, d.get("e2e_us") or {}, d.get("jitter_floor_us") or {}, \
+            d.get("work") or {}
+        c = d.get("costliest_step") or {}
+        frames = d.get("e2e_frames") or {}
+        mflop = [None if w.get(k) is None else w[k] / 1e6 for k in ("p50", "max")]
+        rows.append([label, _fmt(d.get("steps")),
+                     " / ".join(_fmt(st.get(k), 0) for k in ("min", "p50", "p99", "p999", "max")),
+                     " / ".join(_fmt(e2e.get(k), 0) for k in ("p50", "p99", "p999", "max")),
+                     f"{_fmt(frames.get('returned'))} of {_fmt(frames.get('expected'))}",
+                     " / ".join(_fmt(jit.get(k), 0) for k in ("p99", "max")),
+                     _fmt(d.get("overruns")), " / ".join(_fmt(m, 1) for m in mflop),
+                     f"{_fmt(c.get('us_ratio_to_p50'), 2)} / {_fmt(c.get('work_ratio_to_p50'), 2)}"])
+    print(_table(header, rows))
+
+
 def cmd_soak(args):
     loops = _rows(args.loops)[1:]  # the first line names the columns
     header = ["loop", "log", "sensor time (s)", "frames answered", "end-to-end p99 / max (us)",
@@ -395,9 +419,12 @@ def main(argv=None):
     p = sub.add_parser("callgrind")
     p.add_argument("dir")
     p.add_argument("--json")
+    p = sub.add_parser("latency")
+    p.add_argument("rows")
     args = ap.parse_args(argv)
     return {"ate": cmd_ate, "window": cmd_window, "timing": cmd_timing, "callgrind": cmd_callgrind,
-            "daemon": cmd_daemon, "conditions": cmd_conditions, "soak": cmd_soak}[args.cmd](args) or 0
+            "daemon": cmd_daemon, "conditions": cmd_conditions, "soak": cmd_soak,
+            "latency": cmd_latency}[args.cmd](args) or 0
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ import sys
 
 import numpy as np
 
-from . import ToolError
+from . import ToolError, cli
 from .geometry import se3_inv, se3_log
 from .trajio import load_npz, read_kitti
 
@@ -57,6 +57,7 @@ def build_parser():
     p = argparse.ArgumentParser(
         prog="conditions", description=__doc__.splitlines()[0],
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
+    cli.add_version(p)
     p.add_argument("input", metavar="IN.npz", help="seed dataset")
     p.add_argument("output", metavar="OUT.npz", help="modified dataset to write (overwritten)")
     p.add_argument("--velocities", choices=("given", "clean"), default="given",
@@ -199,4 +200,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    cli.run(main)

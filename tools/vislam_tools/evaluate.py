@@ -1,7 +1,8 @@
 """Trajectory evaluation for vislam: ATE/RPE against ground truth, figures, animations.
 
-Trajectories are TUM files (`time tx ty tz qx qy qz qw`, seconds and metres, world-from-IMU),
-the format evo reads (`evo_ape tum GT.tum EST.tum -a` gives the same aligned ATE for TUM ground truth).
+Trajectories are TUM files (`time tx ty tz qx qy qz qw`, seconds and metres, world-from-IMU), the
+format evo reads. Alignment, ATE and RPE are evo's; `evaluate gt` writes the ground truth as TUM so
+that evo_ape / evo_rpe / evo_traj run on the same files and give the same numbers.
 """
 
 import argparse
@@ -10,7 +11,7 @@ import sys
 
 import numpy as np
 
-from . import ToolError
+from . import ToolError, cli
 from .geometry import integrate_dead_reckoning, se3_inv
 from .metrics import CHI2_3DOF_95, associate, ate, consistency, rpe
 from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, read_ground_truth, read_ply,
@@ -19,7 +20,7 @@ from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, re
 EPILOG = """\
 Formats:
   TUM     one pose per line: time tx ty tz qx qy qz qw (s, m, unit quaternion; world-from-IMU).
-          evo-compatible, e.g. evo_ape tum GT.tum EST.tum -a, evo_traj tum EST.tum --plot.
+          What evo reads: write the ground truth with `evaluate gt`, then evo runs directly.
   KITTI   13 numbers per line: time, then the 3x4 [R|t] of the left camera at step i in the
           camera-0 frame (12 numbers without the time also accepted). Converted to IMU poses with
           cam_T_imu from --calib: w_T_i = imu_T_cam * c0_T_cam(i) * cam_T_imu.
@@ -29,6 +30,10 @@ Formats:
 Examples:
   evaluate deadreckon --data ../shared/data/0027.npz --out /tmp/dr.tum
   evaluate ate --estimate slam.tum --gt ../shared/data/gt/kitti_odometry_07.txt --calib ../shared/data/0027.npz
+  evaluate gt --gt ../shared/data/gt/kitti_odometry_07.txt --calib ../shared/data/0027.npz --out gt.tum
+  evo_ape tum gt.tum slam.tum -a                                  # the same ATE as evaluate ate
+  evo_rpe tum gt.tum slam.tum -a --delta 10 --all_pairs [-r angle_deg]   # its RPE over 10 steps
+  evo_traj tum slam.tum --ref gt.tum -a --plot_mode xy --save_plot traj.png
   evaluate plot --estimate slam.tum --dead-reckoning dr.tum --map map.ply --out fig.png
   evaluate animate --estimate slam.tum --map map.ply --out run.gif
   evaluate consistency --estimate slam.tum --covariance slam.cov --gt ../shared/data/gt/kitti_odometry_07.txt \\
@@ -52,7 +57,7 @@ honest test of a filter started at the truth.
 """
 
 
-def _add_gt_args(p, required, scale=True):
+def _add_gt_args(p, required, scale=True, pairing=True):
     p.add_argument("--gt", required=required, metavar="GT",
                    help="ground truth: KITTI odometry poses (.txt) or TUM (e.g. the simulator's truth)")
     p.add_argument("--gt-format", choices=("auto", "tum", "kitti"), default="auto",
@@ -60,6 +65,8 @@ def _add_gt_args(p, required, scale=True):
     p.add_argument("--calib", metavar="DATA.npz|LOG.lcmlog",
                    help="cam_T_imu and step times: a seed dataset or an LCM log with a *CALIB event "
                         "(needed for KITTI ground truth)")
+    if not pairing:
+        return
     p.add_argument("--associate", choices=("auto", "time", "relative", "index"), default="auto",
                    help="pair estimate and GT poses by absolute time, by time since each one's first "
                         "pose, or by line index; auto = time, else relative (default auto)")
@@ -74,6 +81,7 @@ def build_parser():
     parser = argparse.ArgumentParser(
         prog="evaluate", description=__doc__.splitlines()[0],
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
+    cli.add_version(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -114,6 +122,15 @@ def build_parser():
     p.add_argument("--title", default=None, help="figure title")
     p.add_argument("--json", metavar="OUT.json", help="also write the numbers as JSON")
     p.add_argument("--dpi", type=int, default=120)
+
+    p = sub.add_parser("gt", help="write the ground truth as TUM, world-from-IMU at the step times (for evo)",
+                       description="The ground truth as `evaluate ate` reads it (KITTI camera poses\n"
+                       "converted to IMU poses through cam_T_imu, in the frame of the IMU at step 0,\n"
+                       "stamped with the dataset's step times), written as TUM so that evo_ape, evo_rpe\n"
+                       "and evo_traj compare it with a vislam trajectory directly.",
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
+    _add_gt_args(p, required=True, pairing=False)
+    p.add_argument("--out", required=True, metavar="GT.tum")
 
     p = sub.add_parser("deadreckon", help="integrate a dataset's velocities into a TUM trajectory",
                        description="w_T_i(t+1) = w_T_i(t) exp(tau_t hat(u_t)), w_T_i(0) = I; one line per step.")
@@ -276,6 +293,17 @@ def cmd_consistency(args):
     return 0
 
 
+def cmd_gt(args):
+    calib = load_calibration(args.calib) if args.calib else None
+    gt = read_ground_truth(args.gt, calib, args.gt_format)
+    try:
+        write_tum(args.out, gt.times, gt.poses)
+    except OSError as exc:
+        raise ToolError(f"cannot write {args.out}: {exc.strerror}") from exc
+    print(f"wrote {args.out}: {len(gt)} poses")
+    return 0
+
+
 def cmd_deadreckon(args):
     data = load_npz(args.data)
     ts = np.asarray(data["time_stamps"], dtype=float).reshape(-1)
@@ -292,7 +320,7 @@ def cmd_deadreckon(args):
 def main(argv=None):
     args = build_parser().parse_args(argv)
     handlers = {"ate": cmd_ate, "plot": cmd_plot, "animate": cmd_animate, "deadreckon": cmd_deadreckon,
-                "consistency": cmd_consistency}
+                "consistency": cmd_consistency, "gt": cmd_gt}
     try:
         return handlers[args.command](args)
     except ToolError as exc:
@@ -301,4 +329,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    cli.run(main)

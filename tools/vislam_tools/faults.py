@@ -33,7 +33,7 @@ import struct
 import sys
 import time
 
-from . import ToolError, channels
+from . import ToolError, channels, cli
 from .lcmtypes import load, load_lcm
 
 SYNC = 0xEDA1DA01
@@ -249,6 +249,8 @@ def foreign_poses(lcm_url=None, features_channel=channels.FEATURES, pose_channel
         sent[0] += 2
 
     lc.subscribe(features_channel, on_frame)
+    # A test starts the replay once this line is out: frames sent before the subscription are lost.
+    print(f"foreign-poses: listening on {features_channel}", flush=True)
     deadline = time.monotonic() + seconds
     try:
         while time.monotonic() < deadline:
@@ -261,6 +263,7 @@ def foreign_poses(lcm_url=None, features_channel=channels.FEATURES, pose_channel
 def build_parser():
     p = argparse.ArgumentParser(prog="vislam-faults", description=__doc__.split("\n")[0],
                                 epilog="Faults: " + ", ".join(LOG_FAULTS + CONTENT_FAULTS))
+    cli.add_version(p)
     sub = p.add_subparsers(dest="command", required=True)
     i = sub.add_parser("inject", help="write a faulty copy of a log")
     i.add_argument("input", metavar="IN.lcmlog")
@@ -308,4 +311,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    cli.run(main)

@@ -1,10 +1,11 @@
-"""Rotation and rigid-transform helpers (numpy only).
+"""Rotation and rigid-transform helpers (numpy; scipy for the nearest rotation).
 
 Conventions: 4x4 homogeneous matrices; twists are [v (m/s), w (rad/s)] as in the seed project;
 quaternions are (w, x, y, z) unless a function name says `xyzw` (the TUM file order).
 """
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 _EPS = 1e-10
 
@@ -53,11 +54,6 @@ def so3_log(r):
     return axis_sin * (theta / np.sin(theta))
 
 
-def rotation_angle(r):
-    """Angle (rad) of a 3x3 rotation."""
-    return float(np.arccos(np.clip((np.trace(r) - 1.0) * 0.5, -1.0, 1.0)))
-
-
 def se3_exp(u):
     """Twist [v, w] (already multiplied by the time step) -> 4x4 SE(3) matrix."""
     u = np.asarray(u, dtype=float)
@@ -98,6 +94,12 @@ def se3_inv(t):
     out[..., :3, 3] = -np.einsum("...ij,...j->...i", rt, t[..., :3, 3])
     out[..., 3, 3] = 1.0
     return out
+
+
+def nearest_rotation(r):
+    """The rotation nearest a 3x3 (or (N, 3, 3)) matrix that is one up to rounding, as scipy and evo
+    read it (scipy's Rotation.from_matrix)."""
+    return Rotation.from_matrix(np.asarray(r, dtype=float)).as_matrix()
 
 
 def make_pose(r, p):
@@ -152,37 +154,6 @@ def quat_xyzw_to_wxyz(q):
     """(x, y, z, w) -> (w, x, y, z)."""
     q = np.asarray(q, dtype=float)
     return np.concatenate([q[..., 3:4], q[..., 0:3]], axis=-1)
-
-
-def umeyama(src, dst, with_scale=False):
-    """Least-squares similarity/rigid transform mapping src points onto dst points.
-
-    src, dst: (N, 3) arrays, N >= 3 not all collinear for a unique answer.
-    Returns (R, t, s) with dst ~= s * R @ src + t (s == 1 unless with_scale).
-    Umeyama, "Least-squares estimation of transformation parameters between two point patterns", 1991.
-    """
-    src = np.asarray(src, dtype=float)
-    dst = np.asarray(dst, dtype=float)
-    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
-        raise ValueError(f"umeyama needs two (N, 3) arrays of equal shape, got {src.shape} and {dst.shape}")
-    if src.shape[0] < 3:
-        raise ValueError("umeyama needs at least 3 point pairs")
-    mu_s = src.mean(axis=0)
-    mu_d = dst.mean(axis=0)
-    xs = src - mu_s
-    xd = dst - mu_d
-    cov = xd.T @ xs / src.shape[0]
-    u, d, vt = np.linalg.svd(cov)
-    sign = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        sign[2, 2] = -1.0  # reflection guard: the best proper rotation flips the weakest axis
-    r = u @ sign @ vt
-    s = 1.0
-    if with_scale:
-        var_s = (xs ** 2).sum() / src.shape[0]
-        s = float(np.trace(np.diag(d) @ sign) / var_s)
-    t = mu_d - s * r @ mu_s
-    return r, t, s
 
 
 def integrate_dead_reckoning(time_stamps, linear_velocity, rotational_velocity):

@@ -1,22 +1,20 @@
-"""Trajectory association and error metrics (ATE, RPE)."""
+"""Trajectory association and error metrics: ATE and RPE through evo, the filter's consistency.
+
+Alignment (Umeyama), the absolute and the relative pose error are evo's (github.com/MichaelGrupp/evo,
+PyPI `evo`), the same code as `evo_ape` and `evo_rpe`, so the numbers printed here are the ones those
+commands give on the TUM files (`evaluate gt` writes the ground truth). What stays here is vislam's
+own: how estimate and ground truth are paired (by time, time since the start, or index; one-to-one),
+and the consistency statistics.
+"""
 
 import numpy as np
+from evo import EvoException
+from evo.core import metrics as evo_metrics
+from evo.core import sync as evo_sync
+from evo.core.trajectory import PosePath3D
 
 from . import ToolError
-from .geometry import make_pose, rotation_angle, se3_inv, umeyama
-
-
-def _nearest(query, ref, max_dt):
-    """For each query time, index of the nearest ref time (ref sorted) or -1 if farther than max_dt."""
-    idx = np.clip(np.searchsorted(ref, query), 1, max(len(ref) - 1, 1))
-    if len(ref) == 1:
-        idx = np.zeros_like(idx)
-    else:
-        left = idx - 1
-        use_left = np.abs(query - ref[left]) <= np.abs(ref[idx] - query)
-        idx = np.where(use_left, left, idx)
-    ok = np.abs(ref[idx] - query) <= max_dt
-    return np.where(ok, idx, -1)
+from .geometry import make_pose
 
 
 def associate(est_times, gt_times, mode="auto", max_dt=0.02):
@@ -26,6 +24,7 @@ def associate(est_times, gt_times, mode="auto", max_dt=0.02):
           'relative' the same after subtracting each sequence's first time
           'index'    i-th estimate with i-th GT
           'auto'     'time' if it pairs at least half the estimate, else 'relative'
+    Nearest-time matching is evo's (evo.core.sync, what evo_ape does with TUM files).
     Returns (est_idx, gt_idx, mode_used).
     """
     est_times = np.asarray(est_times, dtype=float)
@@ -39,76 +38,82 @@ def associate(est_times, gt_times, mode="auto", max_dt=0.02):
             return e, g, "time"
         return associate(est_times, gt_times, "relative", max_dt)
     if mode == "relative":
-        q = est_times - est_times[0]
-        ref = gt_times - gt_times[0]
+        offset = est_times[0] - gt_times[0]
     elif mode == "time":
-        q, ref = est_times, gt_times
+        offset = 0.0
     else:
         raise ToolError(f"unknown association mode '{mode}'")
-    g = _nearest(q, ref, max_dt)
-    e = np.nonzero(g >= 0)[0]
-    g = g[e]
+    e, g = evo_sync.matching_time_indices(est_times, gt_times, max_dt, offset)
+    e, g = np.asarray(e, dtype=int), np.asarray(g, dtype=int)
     # A GT sample matched twice keeps its first estimate, so pairs stay one-to-one and ordered.
     _, first = np.unique(g, return_index=True)
     keep = np.sort(first)
     return e[keep], g[keep], mode
 
 
-def align(est_positions, gt_positions, with_scale=False):
-    """Rigid (or similarity) transform taking estimate positions onto GT: returns (4x4 T, scale)."""
-    r, t, s = umeyama(est_positions, gt_positions, with_scale)
-    return make_pose(r, t), s
+def _path(poses_or_positions):
+    """An evo path from (N, 4, 4) poses or (N, 3) positions (then with identity rotations)."""
+    a = np.asarray(poses_or_positions, dtype=float)
+    if a.ndim == 2 and a.shape[1] == 3:
+        a = np.array([make_pose(np.eye(3), p) for p in a])
+    if a.ndim != 3 or a.shape[1:] != (4, 4):
+        raise ToolError(f"a trajectory is (N, 4, 4) poses or (N, 3) positions, got shape {a.shape}")
+    return PosePath3D(poses_se3=list(a))
+
+
+def _statistics(metric):
+    """evo's statistics of a processed metric as plain floats, with the pair count."""
+    stats = {k: float(v) for k, v in metric.get_all_statistics().items() if k != "sse"}
+    stats["pairs"] = int(metric.error.shape[0])
+    return stats
 
 
 def ate(est_positions, gt_positions, with_scale=False, do_align=True):
     """Absolute trajectory error of positions after Umeyama alignment of the estimate onto GT.
 
-    Returns a dict of statistics (m), the per-sample errors, and the alignment (4x4, scale).
+    evo's APE on the translation part after evo's alignment (evo_ape -a, or -as with with_scale).
+    est_positions, gt_positions: (N, 3) positions or (N, 4, 4) poses, paired row by row.
+    Returns a dict of statistics (m: rmse, mean, median, max, min, std; pairs), the per-sample
+    errors, and the alignment (4x4 rigid part, scale): aligned = scale * R p + t.
     """
-    est_positions = np.asarray(est_positions, dtype=float)
-    gt_positions = np.asarray(gt_positions, dtype=float)
-    if do_align:
-        t, s = align(est_positions, gt_positions, with_scale)
-    else:
-        t, s = np.eye(4), 1.0
-    aligned = s * est_positions @ t[:3, :3].T + t[:3, 3]
-    err = np.linalg.norm(aligned - gt_positions, axis=1)
-    stats = {
-        "rmse": float(np.sqrt(np.mean(err ** 2))),
-        "mean": float(np.mean(err)),
-        "median": float(np.median(err)),
-        "max": float(np.max(err)),
-        "min": float(np.min(err)),
-        "std": float(np.std(err)),
-        "pairs": int(err.shape[0]),
-    }
-    return stats, err, t, s
+    est, ref = _path(est_positions), _path(gt_positions)
+    if est.num_poses != ref.num_poses:
+        raise ToolError(f"ATE needs paired samples, got {est.num_poses} estimate and {ref.num_poses} GT")
+    r, t, s = np.eye(3), np.zeros(3), 1.0
+    try:
+        if do_align:
+            r, t, s = est.align(ref, correct_scale=with_scale)
+        ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+        ape.process_data((ref, est))
+    except EvoException as exc:
+        raise ToolError(f"cannot compute the ATE: {exc}") from exc
+    return _statistics(ape), np.asarray(ape.error, dtype=float), make_pose(r, t), float(s)
 
 
 def rpe(est_poses, gt_poses, delta):
-    """Relative pose error over pairs (i, i + delta) of associated samples.
+    """Relative pose error over every pair (i, i + delta) of associated samples.
 
-    E_i = (G_i^-1 G_{i+d})^-1 (P_i^-1 P_{i+d}); independent of any world-frame alignment.
-    Returns dict with translation (m) and rotation (deg) RMSE / mean / max, or None if too short.
+    E_i = (G_i^-1 G_{i+d})^-1 (P_i^-1 P_{i+d}), independent of any world-frame alignment: evo's RPE
+    with all pairs (evo_rpe --delta D --all_pairs), translation (m) and rotation angle (deg).
+    Returns dict with translation and rotation RMSE / mean / max, or None if too short.
     """
     n = len(est_poses)
     if delta < 1 or n <= delta:
         return None
-    est_rel = se3_inv(est_poses[:-delta]) @ est_poses[delta:]
-    gt_rel = se3_inv(gt_poses[:-delta]) @ gt_poses[delta:]
-    err = se3_inv(gt_rel) @ est_rel
-    trans = np.linalg.norm(err[:, :3, 3], axis=1)
-    rot = np.degrees([rotation_angle(e[:3, :3]) for e in err])
-    return {
-        "delta": int(delta),
-        "pairs": int(trans.shape[0]),
-        "trans_rmse": float(np.sqrt(np.mean(trans ** 2))),
-        "trans_mean": float(np.mean(trans)),
-        "trans_max": float(np.max(trans)),
-        "rot_rmse_deg": float(np.sqrt(np.mean(rot ** 2))),
-        "rot_mean_deg": float(np.mean(rot)),
-        "rot_max_deg": float(np.max(rot)),
-    }
+    est, ref = _path(est_poses), _path(gt_poses)
+    out = {"delta": int(delta)}
+    for relation, key, unit in ((evo_metrics.PoseRelation.translation_part, "trans", ""),
+                                (evo_metrics.PoseRelation.rotation_angle_deg, "rot", "_deg")):
+        metric = evo_metrics.RPE(relation, delta, evo_metrics.Unit.frames, all_pairs=True)
+        try:
+            metric.process_data((ref, est))
+        except EvoException as exc:
+            raise ToolError(f"cannot compute the RPE over {delta} steps: {exc}") from exc
+        stats = _statistics(metric)
+        out["pairs"] = stats["pairs"]
+        for stat in ("rmse", "mean", "max"):
+            out[f"{key}_{stat}{unit}"] = stats[stat]
+    return out
 
 
 # 0.95 quantile of chi-square with 3 degrees of freedom: a consistent filter's position NEES

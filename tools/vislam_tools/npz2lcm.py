@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 
-from . import ToolError, channels
+from . import ToolError, channels, cli
 from .lcmtypes import load, load_lcm
 from .trajio import load_npz
 
@@ -23,6 +23,7 @@ def build_parser():
         epilog="Channels: <prefix>CALIB (vislam.calibration_t, once), then per step <prefix>IMU "
                "(vislam.imu_t) and <prefix>FEATURES (vislam.stereo_frame_t). Event utime = "
                "round(time_stamps[t] * 1e6).")
+    cli.add_version(p)
     p.add_argument("input", metavar="IN.npz", help="seed dataset")
     p.add_argument("output", metavar="OUT.lcmlog", help="LCM event log to write (overwritten)")
     p.add_argument("--max-steps", type=int, default=None, metavar="N", help="convert at most N steps")
@@ -136,4 +137,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    cli.run(main)

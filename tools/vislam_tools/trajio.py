@@ -7,7 +7,8 @@ from typing import Optional
 import numpy as np
 
 from . import ToolError
-from .geometry import make_pose, quat_to_rot, quat_xyzw_to_wxyz, rot_to_quat, quat_wxyz_to_xyzw, se3_inv
+from .geometry import (make_pose, nearest_rotation, quat_to_rot, quat_wxyz_to_xyzw, quat_xyzw_to_wxyz, rot_to_quat,
+                       se3_inv)
 
 
 @dataclass
@@ -80,6 +81,7 @@ def write_tum(path, times, poses):
 def read_kitti(path):
     """KITTI odometry poses: 12 numbers (3x4 [R|t] row-major) or 13 (time first) per line.
 
+    Each rotation is replaced by the rotation nearest it (the printed ones are rounded).
     Returns (times or None, poses (N, 4, 4)).
     """
     times, poses = [], []
@@ -99,7 +101,11 @@ def read_kitti(path):
         poses.append(p)
     if not poses:
         raise ToolError(f"{path}: no poses")
-    return (np.array(times) if ncols == 13 else None), np.array(poses)
+    poses = np.array(poses)
+    # The files print 7 digits, so a rotation is orthonormal only to about 1e-7, and the angle of a
+    # one-step relative rotation (arccos of a trace near 3) would be off by up to about 0.01 deg.
+    poses[:, :3, :3] = nearest_rotation(poses[:, :3, :3])
+    return (np.array(times) if ncols == 13 else None), poses
 
 
 def sniff_trajectory_format(path):

@@ -19,6 +19,9 @@
  * Between the messages and the core sits the session (vl_session): the
  * calibration policy, counters, health bits and core logger that vislam-run
  * uses too, so a lockstep replay gives the same trajectory as the offline run.
+ *
+ * Under systemd (Type=notify) it reports readiness, feeds the watchdog from this loop while it is
+ * healthy, and publishes a status line (vl_notify); run by hand, none of that happens.
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -36,11 +39,13 @@
 
 #include "vislam/vislam.h"
 #include "vl_channels.h"
+#include "vl_cli.h"
 #include "vl_clock.h"
 #include "vl_config_file.h"
 #include "vl_latency.h"
 #include "vl_log_reader.h"
 #include "vl_msg.h"
+#include "vl_notify.h"
 #include "vl_rt.h"
 #include "vl_session.h"
 #include "vl_signal.h"
@@ -133,6 +138,12 @@ typedef struct {
     int64_t last_overrun_log_us;
     uint64_t overruns_unlogged;
     uint64_t overruns_at_status; /* "since the last status" for BUDGET_OVERRUN */
+
+    /* systemd: readiness, watchdog, status line (all no-ops when not run as a Type=notify service) */
+    vl_notify_t notify;
+    int64_t watchdog_period_us; /* 0: no watchdog */
+    int64_t next_watchdog_us;
+    char notify_buf[256];
 } daemon_t;
 
 /* Several MB (the estimator): static, so it is mapped and locked with the rest at start-up. */
@@ -173,7 +184,12 @@ static void usage(FILE *f)
             "  --quiet                 only warnings and errors on stderr (no periodic status line, no\n"
             "                          exit summary)\n"
             "  --print-config          print the effective configuration (INI, as vislam-run) and exit\n"
+            "  --version               print the version and exit\n"
             "  --help                  this text\n"
+            "\n"
+            "As a systemd Type=notify service (NOTIFY_SOCKET set) it reports READY=1 once subscribed,\n"
+            "WATCHDOG=1 from the estimation loop every half WATCHDOG_USEC while LCM delivers, a STATUS=\n"
+            "line once a second and STOPPING=1 on SIGINT/SIGTERM (the unit: share/vislam/vislamd.service).\n"
             "\n"
             "Exit status: 0 stopped by SIGINT/SIGTERM with every output flushed, 1 run-time failure\n"
             "(LCM, trajectory file), 2 usage or configuration error.\n",
@@ -219,6 +235,8 @@ static int parse_args(int argc, char **argv, options_t *o)
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             exit(0);
+        } else if (strcmp(a, "--version") == 0) {
+            exit(vl_cli_print_version(stdout, "vislamd") == 0 ? 0 : EXIT_RUNTIME);
         } else if (strcmp(a, "--quiet") == 0) {
             o->quiet = 1;
             continue;
@@ -453,6 +471,50 @@ static void print_status_line(const daemon_t *d)
     fputc('\n', stderr);
 }
 
+/* ---- systemd notification (vl_notify: nothing happens without NOTIFY_SOCKET) ---- */
+
+static const char *tracking_state(const daemon_t *d)
+{
+    const int32_t health = d->status_msg.health;
+    if (health & VISLAM_STATUS_T_HEALTH_WAITING_CALIBRATION) {
+        return "waiting for a calibration";
+    }
+    return (health & VISLAM_STATUS_T_HEALTH_NOT_TRACKING) ? "not tracking" : "tracking";
+}
+
+/* STATUS=, after each periodic status: the state and the counts an operator looks at first
+   (`systemctl status vislamd`). Integers only: formatting them does not allocate. */
+static void notify_status(daemon_t *d)
+{
+    if (!vl_notify_active(&d->notify)) {
+        return;
+    }
+    const vislam_status_t *s = &d->status_msg;
+    snprintf(d->notify_buf, sizeof(d->notify_buf),
+             "STATUS=%s: imu %" PRId64 " frames %" PRId64 " poses %" PRId64 " rejected %" PRId64
+             " window %d/%d p99 %d us overruns %" PRId64 " health 0x%x",
+             tracking_state(d), s->imu_in, s->frames_in, s->poses_out, s->inputs_rejected, (int)s->window_landmarks,
+             (int)s->window_capacity, (int)s->latency_p99_us, s->budget_overruns, (unsigned)s->health);
+    vl_notify_send(&d->notify, d->notify_buf);
+}
+
+/*
+ * WATCHDOG=1 every half watchdog period, sent from the loop that steps the estimator and only
+ * while it is healthy (LCM's last lcm_handle succeeded): a step that hangs, or a receive side
+ * that keeps failing, stops the pings and systemd restarts the daemon. Budget overruns do not
+ * count: a slow step is reported in the status, a stuck one is what the watchdog is for.
+ */
+static void feed_watchdog(daemon_t *d, int64_t now, int healthy)
+{
+    if (d->watchdog_period_us <= 0 || now < d->next_watchdog_us) {
+        return;
+    }
+    if (healthy) {
+        vl_notify_send(&d->notify, "WATCHDOG=1");
+    }
+    d->next_watchdog_us = now + d->watchdog_period_us;
+}
+
 /* ---- LCM handlers: decode (vl_log_event_decode), then one session step, timed ---- */
 
 static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_buf_t *rbuf, const char *channel)
@@ -654,6 +716,13 @@ int main(int argc, char **argv)
     if (d->opt.print_config) {
         return vl_config_write_ini(stdout, &d->cfg, d->info.has_calibration) == 0 ? 0 : EXIT_RUNTIME;
     }
+    {
+        char err[256];
+        if (vl_notify_open(&d->notify, err, sizeof(err)) < 0) {
+            fprintf(stderr, "vislamd: warning: %s; not notifying the service manager\n", err);
+        }
+        d->watchdog_period_us = vl_notify_watchdog_period_us(&d->notify);
+    }
     d->budget_us = d->opt.budget_us > 0 ? d->opt.budget_us : DEFAULT_BUDGET_US;
     vl_latency_reset(&d->lat_all);
     vl_latency_reset(&d->lat_step[0]);
@@ -730,14 +799,19 @@ int main(int argc, char **argv)
                 d->channel[CH_STATUS], d->opt.lcm_url != NULL ? d->opt.lcm_url : "default",
                 vl_session_initialized(&d->session) ? "" : "; waiting for a calibration");
     }
+    snprintf(d->notify_buf, sizeof(d->notify_buf), "READY=1\nSTATUS=ready: %s",
+             vl_session_initialized(&d->session) ? "calibrated, waiting for inputs" : "waiting for a calibration");
+    vl_notify_send(&d->notify, d->notify_buf);
 
     int exit_code = 0;
     int lcm_errors = 0;
     int64_t next_status = vl_clock_monotonic_us() + STATUS_PERIOD_US;
     while (!vl_signal_stop_requested()) {
         int64_t now = vl_clock_monotonic_us();
+        feed_watchdog(d, now, lcm_errors == 0);
         if (now >= next_status) {
             publish_status(d);
+            notify_status(d);
             if (!d->opt.quiet && d->n.status_out % STATUS_LOG_EVERY == 0) {
                 print_status_line(d);
             }
@@ -746,7 +820,11 @@ int main(int argc, char **argv)
                 next_status = now + STATUS_PERIOD_US; /* do not burst after a stall */
             }
         }
-        const int r = vl_signal_wait_fd(fd, next_status - now);
+        int64_t wake = next_status;
+        if (d->watchdog_period_us > 0 && d->next_watchdog_us < wake) {
+            wake = d->next_watchdog_us;
+        }
+        const int r = vl_signal_wait_fd(fd, wake - now);
         if (r > 0) {
             if (lcm_handle(d->lcm) != 0) {
                 if (++lcm_errors >= LCM_ERRORS_MAX) {
@@ -763,6 +841,10 @@ int main(int argc, char **argv)
             break;
         }
     }
+
+    snprintf(d->notify_buf, sizeof(d->notify_buf), "STOPPING=1\nSTATUS=stopping (%s)",
+             exit_code != 0 ? "LCM failed" : (vl_signal_last() == SIGINT ? "SIGINT" : "SIGTERM"));
+    vl_notify_send(&d->notify, d->notify_buf);
 
     /* Messages already received are still processed, so no input that arrived is lost. */
     for (int i = 0; i < DRAIN_MAX && exit_code == 0; ++i) {
@@ -781,5 +863,6 @@ int main(int argc, char **argv)
         exit_code = EXIT_RUNTIME;
     }
     lcm_destroy(d->lcm);
+    vl_notify_close(&d->notify);
     return exit_code;
 }

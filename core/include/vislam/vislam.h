@@ -92,13 +92,16 @@ typedef enum {
     VL_ERR_TIME_JUMP = -9,             /**< Input time more than max_time_jump away from the estimator's
                                            clock, ahead or behind; refused, the clock did not move. */
     VL_ERR_IMPLAUSIBLE = -10,          /**< IMU sample beyond max_speed or max_rotation_rate; refused. */
-    VL_ERR_IMU_SILENT = -11            /**< Frame more than max_imu_silence after the last IMU sample:
+    VL_ERR_IMU_SILENT = -11,           /**< Frame more than max_imu_silence after the last IMU sample:
                                            not propagated with a stale velocity, refused; the
                                            estimator is degraded until the IMU returns. */
+    VL_ERR_ABI_MISMATCH = -12          /**< vl_init: the caller was compiled with other capacities
+                                           (VL_MAX_LANDMARKS, VL_MAX_FRAME_FEATURES) or another
+                                           vislam.h than the library; the estimator was not touched. */
 } vl_status_t;
 
 /** Lowest and highest vl_status_t values, for tables indexed by status. */
-#define VL_STATUS_MIN VL_ERR_IMU_SILENT
+#define VL_STATUS_MIN VL_ERR_ABI_MISMATCH
 #define VL_STATUS_MAX VL_RESET
 
 /** What the estimator does with its inputs (the seed project's three parts). */
@@ -345,6 +348,7 @@ typedef struct {
     double p[3];              /**< m */
     double held_linear[3];    /**< raw last linear velocity sample, m/s */
     double held_angular[3];   /**< raw last angular velocity sample, rad/s */
+    int held_trusted;         /**< the held sample may carry the motion on (not after a divergence it led to) */
     double offset_linear[3];  /**< m/s */
     double offset_angular[3]; /**< rad/s */
 
@@ -396,8 +400,29 @@ void vl_config_preset_seed(vl_config_t *cfg);
 /** Checks every configuration value; VL_OK or VL_ERR_CONFIG. */
 vl_status_t vl_config_check(const vl_config_t *cfg);
 
-/** Initializes the estimator: identity pose, empty window. The config is copied. */
-vl_status_t vl_init(vl_estimator_t *e, const vl_config_t *cfg);
+/**
+ * Initializes the estimator: identity pose, empty window. The config is copied.
+ *
+ * A macro over vl_init_checked: it passes the sizes and capacities the caller
+ * was compiled with, so a caller built with another VL_MAX_LANDMARKS (or
+ * another vislam.h) than the library gets VL_ERR_ABI_MISMATCH instead of a
+ * library writing past the end of a smaller estimator.
+ * @return VL_OK, VL_ERR_NULL, VL_ERR_ABI_MISMATCH, VL_ERR_MISALIGNED or VL_ERR_CONFIG
+ */
+#define vl_init(e, cfg)                                                                                 \
+    vl_init_checked((e), (cfg), sizeof(vl_estimator_t), sizeof(vl_config_t), sizeof(vl_stereo_frame_t), \
+                    VL_MAX_LANDMARKS)
+
+/**
+ * vl_init with the caller's view of the types: refuses with VL_ERR_ABI_MISMATCH,
+ * before touching e, unless every argument equals the library's own value.
+ * @param estimator_size sizeof(vl_estimator_t), bytes
+ * @param config_size    sizeof(vl_config_t), bytes
+ * @param frame_size     sizeof(vl_stereo_frame_t), bytes (it carries VL_MAX_FRAME_FEATURES)
+ * @param max_landmarks  VL_MAX_LANDMARKS
+ */
+vl_status_t vl_init_checked(vl_estimator_t *e, const vl_config_t *cfg, size_t estimator_size, size_t config_size,
+                            size_t frame_size, uint32_t max_landmarks);
 
 /**
  * Propagates the state to imu->utime with the previously held velocities,

@@ -1,0 +1,105 @@
+/*
+ * vl_init's agreement check between the caller's build and the library's: a
+ * caller compiled with another capacity or another vislam.h is refused with
+ * VL_ERR_ABI_MISMATCH before the library reads its configuration or writes its
+ * estimator. (tests/consumer/ checks the same through a separately compiled
+ * program with -DVL_MAX_LANDMARKS=64.)
+ */
+#include <string.h>
+
+#include "unity.h"
+#include "vislam/vislam.h"
+#include "vl_test_util.h"
+
+static vl_estimator_t est;
+
+/* Marks the start of the estimator, where vl_init's first write lands. */
+#define SENTINEL 0xA5
+
+static vl_config_t kitti_config(void)
+{
+    vl_config_t cfg;
+    vl_config_default(&cfg);
+    vl_test_kitti_calibration(&cfg.calibration, 1);
+    return cfg;
+}
+
+/* True when the first bytes of the estimator still hold the sentinel. */
+static int untouched(void)
+{
+    const unsigned char *b = (const unsigned char *)&est;
+    for (size_t i = 0; i < sizeof(vl_config_t) + sizeof(vl_counters_t); ++i) {
+        if (b[i] != SENTINEL) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+void setUp(void)
+{
+    memset(&est, SENTINEL, sizeof(est));
+}
+
+void tearDown(void)
+{
+}
+
+void test_matching_build_initializes(void)
+{
+    const vl_config_t cfg = kitti_config();
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    TEST_ASSERT_FALSE(untouched());
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init_checked(&est, &cfg, sizeof(vl_estimator_t), sizeof(vl_config_t),
+                                                 sizeof(vl_stereo_frame_t), VL_MAX_LANDMARKS));
+}
+
+void test_other_capacity_is_refused_untouched(void)
+{
+    const vl_config_t cfg = kitti_config();
+    TEST_ASSERT_EQUAL_INT(VL_ERR_ABI_MISMATCH, vl_init_checked(&est, &cfg, sizeof(vl_estimator_t), sizeof(vl_config_t),
+                                                               sizeof(vl_stereo_frame_t), VL_MAX_LANDMARKS / 2));
+    TEST_ASSERT_TRUE(untouched());
+    TEST_ASSERT_EQUAL_INT(VL_ERR_ABI_MISMATCH, vl_init_checked(&est, &cfg, sizeof(vl_estimator_t), sizeof(vl_config_t),
+                                                               sizeof(vl_stereo_frame_t), VL_MAX_LANDMARKS + 1));
+    TEST_ASSERT_TRUE(untouched());
+}
+
+void test_other_sizes_are_refused_untouched(void)
+{
+    const vl_config_t cfg = kitti_config();
+    /* A smaller estimator: what a caller with a smaller VL_MAX_LANDMARKS allocates. */
+    TEST_ASSERT_EQUAL_INT(VL_ERR_ABI_MISMATCH,
+                          vl_init_checked(&est, &cfg, sizeof(vl_estimator_t) / 2, sizeof(vl_config_t),
+                                          sizeof(vl_stereo_frame_t), VL_MAX_LANDMARKS));
+    TEST_ASSERT_TRUE(untouched());
+    /* A configuration from another vislam.h (one key more or less). */
+    TEST_ASSERT_EQUAL_INT(VL_ERR_ABI_MISMATCH,
+                          vl_init_checked(&est, &cfg, sizeof(vl_estimator_t), sizeof(vl_config_t) - sizeof(double),
+                                          sizeof(vl_stereo_frame_t), VL_MAX_LANDMARKS));
+    TEST_ASSERT_TRUE(untouched());
+    /* Frames of another VL_MAX_FRAME_FEATURES. */
+    TEST_ASSERT_EQUAL_INT(VL_ERR_ABI_MISMATCH,
+                          vl_init_checked(&est, &cfg, sizeof(vl_estimator_t), sizeof(vl_config_t),
+                                          sizeof(vl_stereo_frame_t) + sizeof(vl_stereo_obs_t), VL_MAX_LANDMARKS));
+    TEST_ASSERT_TRUE(untouched());
+}
+
+void test_null_comes_first_and_status_has_a_text(void)
+{
+    const vl_config_t cfg = kitti_config();
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_init_checked(NULL, &cfg, 0, 0, 0, 0));
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_init_checked(&est, NULL, 0, 0, 0, 0));
+    TEST_ASSERT_TRUE(untouched());
+    TEST_ASSERT_TRUE(strcmp("unknown status", vl_status_str(VL_ERR_ABI_MISMATCH)) != 0);
+}
+
+int main(void)
+{
+    UNITY_BEGIN();
+    RUN_TEST(test_matching_build_initializes);
+    RUN_TEST(test_other_capacity_is_refused_untouched);
+    RUN_TEST(test_other_sizes_are_refused_untouched);
+    RUN_TEST(test_null_comes_first_and_status_has_a_text);
+    return UNITY_END();
+}

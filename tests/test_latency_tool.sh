@@ -1,0 +1,88 @@
+#!/usr/bin/env bash
+# vislam-latency on data/sample.lcmlog, run by CTest:
+#
+#   tests/test_latency_tool.sh in-process|e2e BIN_DIR LOG_INSPECT SOURCE_DIR
+#
+# in-process: two passes as fast as possible without vislamd; the JSON has every key, its
+#   percentiles are ordered (min <= p50 <= p99 <= p999 <= max), steps = frames in the log x
+#   passes (frames counted by vl_log_inspect), the work per step is positive with max >= p50,
+#   and the jitter probe ran.
+# e2e: the same plus vislamd over LCM, in a private network namespace (exit 77, CTest's skip,
+#   when unshare --net is not permitted): every frame's pose came back, one sample per step.
+# No -e: every check runs and is reported; the exit status counts the failed ones.
+set -uo pipefail
+
+if [ $# -ne 4 ]; then
+  echo "usage: $0 in-process|e2e BIN_DIR LOG_INSPECT SOURCE_DIR" >&2
+  exit 2
+fi
+MODE=$1
+BIN=$2
+INSPECT=$3
+SRC=$4
+LOG="$SRC/data/sample.lcmlog"
+URL='udpm://239.255.76.67:7667?ttl=0'
+PASSES=2
+PYTHON=${VISLAM_PYTHON:-python3}
+FAILS=0
+# shellcheck source=support/vl_record.sh
+. "$SRC/tests/support/vl_record.sh"
+
+if [ "$MODE" = e2e ]; then
+  enter_private_netns "$0" "$@"
+fi
+OUT=$(mktemp -d)
+trap 'rm -rf "$OUT"' EXIT
+
+# The JSON's facts as "key value" lines, for value/eq/le below.
+facts() {
+  "$PYTHON" - "$1" <<'PY'
+import json, sys
+d = json.load(open(sys.argv[1]))
+keys = ["window", "steps", "step_us", "e2e_us", "jitter_floor_us", "overruns", "work"]
+print("keys_ok", int(all(k in d for k in keys)))
+def ordered(s):
+    return int(s is not None and s["min"] <= s["p50"] <= s["p99"] <= s["p999"] <= s["max"])
+print("step_ordered", ordered(d["step_us"]))
+print("e2e_ordered", ordered(d["e2e_us"]))
+print("steps", d["steps"])
+print("window", d["window"])
+print("overruns_int", int(isinstance(d["overruns"], int) and d["overruns"] >= 0))
+print("work_ok", int(d["work"]["max"] >= d["work"]["p50"] > 0))
+j = d["jitter_floor_us"]
+print("jitter_ok", int(j is not None and j["samples"] > 0 and j["max"] >= 0))
+print("e2e_returned", d["e2e_frames"]["returned"])
+print("e2e_samples", len(d["samples"]["e2e_us"]))
+PY
+}
+
+frames=$(value <("$INSPECT" "$LOG") channel.VISLAM_FEATURES)
+expected=$((frames * PASSES))
+args=("$LOG" --rate max --passes "$PASSES" --json "$OUT/l.json" --quiet)
+if [ "$MODE" = e2e ]; then
+  args+=(--lcm-url "$URL")
+else
+  args+=(--no-e2e)
+fi
+echo "== vislam-latency ${args[*]}"
+rc=0
+"$BIN/vislam-latency" "${args[@]}" 2>"$OUT/stderr" || rc=$?
+cat "$OUT/stderr"
+check "exit status 0" eq "$rc" 0
+facts "$OUT/l.json" >"$OUT/facts" || echo "FAIL: the JSON does not parse"
+check "every key of the JSON" eq "$(value "$OUT/facts" keys_ok)" 1
+check "steps = $frames frames x $PASSES passes" eq "$(value "$OUT/facts" steps)" "$expected"
+check "window = the default 128" eq "$(value "$OUT/facts" window)" 128
+check "step percentiles ordered" eq "$(value "$OUT/facts" step_ordered)" 1
+check "work max >= p50 > 0" eq "$(value "$OUT/facts" work_ok)" 1
+check "overruns counted" eq "$(value "$OUT/facts" overruns_int)" 1
+check "the jitter probe ran" eq "$(value "$OUT/facts" jitter_ok)" 1
+if [ "$MODE" = e2e ]; then
+  check "end to end: every pose came back" eq "$(value "$OUT/facts" e2e_returned)" "$expected"
+  check "end to end: one sample per step" eq "$(value "$OUT/facts" e2e_samples)" "$expected"
+  check "end-to-end percentiles ordered" eq "$(value "$OUT/facts" e2e_ordered)" 1
+else
+  check "no end-to-end figures without vislamd" eq "$(value "$OUT/facts" e2e_samples)" 0
+fi
+echo "$FAILS check(s) failed"
+exit "$FAILS"

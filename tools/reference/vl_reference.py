@@ -1,0 +1,885 @@
+"""The vislam filter, written again in plain NumPy for reading, not for speed.
+
+This module computes what core/ computes, step for step, for any configuration vislam-run prints
+with --print-config in slam or imu_only mode (the default one included: the gate, re-association,
+1-point RANSAC, the update time bound, the rescue pass and the noise adaptation). Where the C code
+makes a choice (the order of landmark slots, the swap-based partition of the rows, the random
+numbers of RANSAC, the stable admission order), this code makes the same one, so on the same log
+the two trajectories agree to rounding (tests/python/test_reference.py holds them to it).
+
+Not modelled: the robustness rules of core/src/vl_guard.c that never act on a clean log (time
+jumps, new timelines, IMU silence, divergence resets, frame truncation, implausible IMU samples)
+and the mapping mode. A log that would need one stops the run with ReferenceError.
+
+Notation (README, "The estimator"): the pose T = (R, p) is world-from-IMU; the state is
+[rho, phi, b_v, b_w, rho_1, ..., rho_N] with the invariant error T = exp(xi) T_hat and
+l_i = exp(phi) l_hat_i + J_l(phi) rho_i; the covariance P is (12 + 3N) square. Landmark i's
+block starts at column 12 + 3 i.
+"""
+
+import configparser
+import math
+import subprocess
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vislam_tools import channels
+from vislam_tools.geometry import hat3, rot_to_quat
+from vislam_tools.lcmtypes import load, load_lcm
+
+CORE_DIM = 12                # rho, phi, linear offset, angular offset
+MIN_CAMERA_DEPTH = 1e-3      # m; a point nearer than this in front of the camera is "behind" it
+MIN_ROWS_FOR_REASSOCIATION = 8
+MAX_PENDING = 512            # candidate tracks remembered (2 x VL_MAX_FRAME_FEATURES)
+MAX_FRAME_FEATURES = 256
+AGE_BONUS, AGE_CAP = 0.5, 4  # admission score: disparity x (1 + 0.5 min(age, 4))
+NOISE_ADAPT_RANGE = 100.0    # adapted standard deviations stay within 100x of the configured ones
+CONTRADICTION_RUN = 2        # re-associated frames in a row that widen the noise
+PIXEL_NOISE_MEMORY = 1000.0  # rows the pixel noise estimate averages over
+CHI2_1_MEDIAN = 0.455        # median of chi-square(1): a median of squares to a variance
+VELOCITY_NOISE_GAIN = 0.05
+VELOCITY_RATIO_MIN, VELOCITY_RATIO_MAX = 0.1, 10.0
+VELOCITY_MIN_INFORMATION = 1e-12
+WIDEN_ON_CONTRADICTION = 4.0
+SERIES_ANGLE = 1.0           # below this angle (rad) the Lie-group coefficients come from series
+SERIES_TERMS = 14
+STEREO_SHARE = np.array([1.0, 0.5, 1.0])  # noise of [u_left, (v_left + v_right) / 2, u_right] / s^2
+
+
+class ReferenceError(Exception):
+    """The log needs something this reference does not model."""
+
+
+# ------------------------------------------------------------------------------------- SO(3), SE(3)
+# Written again rather than taken from vislam_tools.geometry: these follow core/src/vl_se3.c
+# (Taylor series below 1 rad, the polar normalization), so that the two filters round alike.
+
+def _trig_series(t2, m):
+    """Taylor series of sin t / t (m = 1), (1 - cos t) / t^2 (m = 2), (t - sin t) / t^3 (m = 3),
+    (t^2 / 2 + cos t - 1) / t^4 (m = 4): sum_k (-1)^k t^2k / (2k + m)!, with no cancellation."""
+    term = 1.0 / math.factorial(m)
+    total = term
+    for k in range(SERIES_TERMS):
+        term *= -t2 / ((2 * k + m + 1) * (2 * k + m + 2))
+        total += term
+    return total
+
+
+def so3_coefficients(t):
+    """sin t / t, (1 - cos t) / t^2 and (t - sin t) / t^3 for the angle t (rad)."""
+    if t < SERIES_ANGLE:
+        t2 = t * t
+        return _trig_series(t2, 1), _trig_series(t2, 2), _trig_series(t2, 3)
+    return math.sin(t) / t, (1.0 - math.cos(t)) / (t * t), (t - math.sin(t)) / (t ** 3)
+
+
+def so3_exp(phi):
+    """exp(hat(phi)) = I + (sin t / t) F + ((1 - cos t) / t^2) F^2 with F = hat(phi) (Rodrigues)."""
+    a, b, _ = so3_coefficients(math.sqrt(phi @ phi))
+    F = hat3(phi)
+    return np.eye(3) + a * F + b * (F @ F)
+
+
+def so3_left_jacobian(phi):
+    """J_l(phi) = I + ((1 - cos t) / t^2) F + ((t - sin t) / t^3) F^2 (Barfoot eq. 7.77)."""
+    _, b, c = so3_coefficients(math.sqrt(phi @ phi))
+    F = hat3(phi)
+    return np.eye(3) + b * F + c * (F @ F)
+
+
+def se3_exp(xi):
+    """exp of the twist xi = [rho, phi]: (R, p) = (exp(phi), J_l(phi) rho)."""
+    return so3_exp(xi[3:]), so3_left_jacobian(xi[3:]) @ xi[:3]
+
+
+def _se3_q(rho, phi):
+    """Q(rho, phi), the top-right block of the SE(3) left Jacobian (Barfoot eq. 7.86)."""
+    t = math.sqrt(phi @ phi)
+    if t < SERIES_ANGLE:
+        t2 = t * t
+        a, b = _trig_series(t2, 3), _trig_series(t2, 4)
+        term = c = 1.0 / 120.0  # c = sum_k (-1)^k (k + 1) t^2k / (2k + 5)!
+        for k in range(SERIES_TERMS):
+            term *= -t2 / ((2 * k + 6) * (2 * k + 7))
+            c += (k + 2) * term
+    else:
+        s, co, t2 = math.sin(t), math.cos(t), t * t
+        a = (t - s) / (t2 * t)
+        b = (t2 + 2.0 * co - 2.0) / (2.0 * t2 * t2)
+        c = (2.0 * t - 3.0 * s + t * co) / (2.0 * t2 * t2 * t)
+    P, F = hat3(rho), hat3(phi)
+    FP, PF = F @ P, P @ F
+    FPF = FP @ F
+    return (0.5 * P + a * (FP + PF + FPF) + b * (F @ FP + PF @ F - 3.0 * FPF)
+            + c * (FPF @ F + F @ FPF))
+
+
+def se3_left_jacobian(xi):
+    """The 6x6 left Jacobian [[J_l(phi), Q], [0, J_l(phi)]] of SE(3)."""
+    J = np.zeros((6, 6))
+    J[:3, :3] = J[3:, 3:] = so3_left_jacobian(xi[3:])
+    J[:3, 3:] = _se3_q(xi[:3], xi[3:])
+    return J
+
+
+def se3_right_jacobian(xi):
+    """J_r(xi) = J_l(-xi)."""
+    return se3_left_jacobian(-np.asarray(xi))
+
+
+def se3_adjoint(R, p):
+    """Ad(T) = [[R, hat(p) R], [0, R]], which maps twists xi -> T xi T^-1."""
+    A = np.zeros((6, 6))
+    A[:3, :3] = A[3:, 3:] = R
+    A[:3, 3:] = hat3(p) @ R
+    return A
+
+
+def so3_normalize(R):
+    """The nearest rotation (Frobenius norm) by Newton's iteration on the polar factor,
+    X <- (X + X^-T) / 2, as core/src/vl_se3.c does (so the round-off is alike)."""
+    R = R.copy()
+    for _ in range(20):
+        C = np.array([
+            [R[1, 1] * R[2, 2] - R[1, 2] * R[2, 1], R[1, 2] * R[2, 0] - R[1, 0] * R[2, 2],
+             R[1, 0] * R[2, 1] - R[1, 1] * R[2, 0]],
+            [R[0, 2] * R[2, 1] - R[0, 1] * R[2, 2], R[0, 0] * R[2, 2] - R[0, 2] * R[2, 0],
+             R[0, 1] * R[2, 0] - R[0, 0] * R[2, 1]],
+            [R[0, 1] * R[1, 2] - R[0, 2] * R[1, 1], R[0, 2] * R[1, 0] - R[0, 0] * R[1, 2],
+             R[0, 0] * R[1, 1] - R[0, 1] * R[1, 0]]])  # cofactors: X^-T = C / det X
+        det = R[0, 0] * C[0, 0] + R[0, 1] * C[0, 1] + R[0, 2] * C[0, 2]
+        if not det > 1e-12:
+            raise ReferenceError("rotation degenerated (the C code would fall back to a quaternion)")
+        nxt = 0.5 * (R + C / det)
+        change = np.abs(nxt - R).sum()
+        R = nxt
+        if change < 1e-15:
+            break
+    return R
+
+
+# ------------------------------------------------------------------------------------- stereo camera
+
+@dataclass
+class Calibration:
+    """The stereo rig: pinhole intrinsics (px), baseline (m) and cam_T_imu (4x4)."""
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline: float
+    cam_T_imu: np.ndarray
+
+    @property
+    def Rc(self):
+        return self.cam_T_imu[:3, :3]
+
+    @property
+    def tc(self):
+        return self.cam_T_imu[:3, 3]
+
+
+def stereo_project(cal, c):
+    """The compressed stereo model y = [u_left, v, u_right] of the camera point c, and dy/dc:
+    u_left = fx x / z + cx, v = fy y / z + cy, u_right = fx (x - b) / z + cx."""
+    iz = 1.0 / c[2]
+    xn, yn, xr = c[0] * iz, c[1] * iz, (c[0] - cal.baseline) * iz
+    y = np.array([cal.fx * xn + cal.cx, cal.fy * yn + cal.cy, cal.fx * xr + cal.cx])
+    dy_dc = np.array([[cal.fx * iz, 0.0, -cal.fx * xn * iz],
+                      [0.0, cal.fy * iz, -cal.fy * yn * iz],
+                      [cal.fx * iz, 0.0, -cal.fx * xr * iz]])
+    return y, dy_dc
+
+
+def stereo_triangulate(cal, y):
+    """The camera point of a compressed observation and dc/dy: z = fx b / d with the disparity
+    d = u_left - u_right, x = (u_left - cx) b / d, y = (v - cy) (fx / fy) b / d."""
+    b = cal.baseline
+    idd = 1.0 / (y[0] - y[2])
+    du, dv = y[0] - cal.cx, (y[1] - cal.cy) * cal.fx / cal.fy
+    c = np.array([du * b * idd, dv * b * idd, cal.fx * b * idd])
+    bid2 = b * idd * idd
+    dc_dy = np.array([[b * idd - du * bid2, 0.0, du * bid2],
+                      [-dv * bid2, b * idd * cal.fx / cal.fy, dv * bid2],
+                      [-cal.fx * bid2, 0.0, cal.fx * bid2]])
+    return c, dc_dy
+
+
+def compress(o):
+    """An observation (id, u_left, v_left, u_right, v_right) as y = [u_left, (v_l + v_r) / 2, u_right]:
+    the rows of v_left and v_right in the stereo matrix M are equal, so this loses nothing."""
+    return np.array([o[1], 0.5 * (o[2] + o[4]), o[3]])
+
+
+def stereo_noise(pixel_var):
+    """Noise variances of the compressed observation: diag(s^2, s^2 / 2, s^2)."""
+    return pixel_var * STEREO_SHARE
+
+
+def mahalanobis3(S, r):
+    """r^T S^-1 r through the Cholesky factor of S; infinite when S is not positive definite."""
+    if not S[0, 0] > 0.0:
+        return math.inf
+    l00 = math.sqrt(S[0, 0])
+    l10, l20 = S[1, 0] / l00, S[2, 0] / l00
+    d11 = S[1, 1] - l10 * l10
+    if not d11 > 0.0:
+        return math.inf
+    l11 = math.sqrt(d11)
+    l21 = (S[2, 1] - l20 * l10) / l11
+    d22 = S[2, 2] - l20 * l20 - l21 * l21
+    if not d22 > 0.0:
+        return math.inf
+    l22 = math.sqrt(d22)
+    w0 = r[0] / l00
+    w1 = (r[1] - l10 * w0) / l11
+    w2 = (r[2] - l20 * w0 - l21 * w1) / l22
+    return w0 * w0 + w1 * w1 + w2 * w2
+
+
+def splitmix64(state):
+    """One draw of splitmix64: (new state, value), the generator of RANSAC's hypotheses."""
+    mask = (1 << 64) - 1
+    state = (state + 0x9E3779B97F4A7C15) & mask
+    z = state
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & mask
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & mask
+    return state, z ^ (z >> 31)
+
+
+# ------------------------------------------------------------------------------------- configuration
+
+def read_config(vislam_run, preset=None, config_file=None, max_landmarks=None):
+    """The configuration vislam-run would use, from its own --print-config (one definition)."""
+    cmd = [str(vislam_run), "--print-config"]
+    if preset:
+        cmd += ["--preset", preset]
+    if config_file:
+        cmd += ["--config", str(config_file)]
+    if max_landmarks:
+        cmd += ["--max-landmarks", str(max_landmarks)]
+    text = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+    ini = configparser.ConfigParser(inline_comment_prefixes=("#", ";"))
+    ini.read_string(text)
+    cfg = {}
+    for section in ini.sections():
+        if section == "calibration":
+            continue
+        for key, value in ini[section].items():
+            if value in ("true", "false"):
+                cfg[key] = value == "true"
+            elif key == "mode":
+                cfg[key] = value
+            else:
+                cfg[key] = float(value)
+    return cfg
+
+
+# ------------------------------------------------------------------------------------- the filter
+
+@dataclass
+class Slot:
+    """A window landmark's bookkeeping (its point is in Filter.L, its error in P)."""
+    id: int
+    unseen_frames: int = 0
+    seen: int = 0  # this frame: 0 not observed, 1 observed, 2 observed and contradicting (broken)
+
+
+@dataclass
+class Pending:
+    """A track not (yet) in the window: its point and pixel-noise covariance from its last observation."""
+    id: int
+    frames_seen: int
+    last_frame: int
+    point: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    cov: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+
+
+@dataclass
+class Row:
+    """One observation's update rows: y - h(x) ~ H_pose dx_pose + H_landmark dx_landmark + v."""
+    slot: int
+    obs: int                # index in the frame
+    H_pose: np.ndarray      # 3 x 6
+    H_landmark: np.ndarray  # 3 x 3
+    residual: np.ndarray    # 3
+    noise: np.ndarray       # 3 variances
+
+
+SEEN_NONE, SEEN, SEEN_BROKEN = 0, 1, 2
+
+
+class Filter:
+    """The joint EKF on SE_{N+1}(3) with invariant errors, as core/src does it."""
+
+    def __init__(self, cfg, cal):
+        if cfg["mode"] not in ("slam", "imu_only"):
+            raise ReferenceError(f"mode {cfg['mode']} is not modelled")
+        self.cfg, self.cal = cfg, cal
+        self.R, self.p = np.eye(3), np.zeros(3)
+        self.b_v, self.b_w = np.zeros(3), np.zeros(3)  # velocity input offsets
+        self.L = np.zeros((0, 3))                         # window landmarks, world points
+        self.slots = []
+        self.pending = []
+        self.P = np.zeros((CORE_DIM, CORE_DIM))
+        if cfg["estimate_input_offsets"]:
+            self.P[6:9, 6:9] = np.eye(3) * cfg["linear_offset_prior"] ** 2
+            self.P[9:12, 9:12] = np.eye(3) * cfg["angular_offset_prior"] ** 2
+        self.var_v = cfg["linear_velocity"] ** 2
+        self.var_w = cfg["angular_velocity"] ** 2
+        self.var_px = cfg["pixel"] ** 2
+        self.state_utime = None  # us; None until the first IMU sample
+        self.last_imu_utime = None
+        self.held_v = self.held_w = None
+        self.last_frame_utime = None
+        self.frame_index = 0
+        self.reassociated_run = 0
+        self.failed_frame_run = 0
+        self.broken_obs = []
+        self.counters = {"frames": 0, "updates_refused": 0, "observations_used": 0,
+                         "frames_reassociated": 0, "landmarks_initialized": 0}
+
+    @property
+    def n(self):
+        return self.P.shape[0]
+
+    # ---- prediction (README "Prediction"; core/src/vl_predict.c)
+
+    def predict_to(self, utime):
+        """T <- T exp(tau (u - b)); the invariant error does not move (Phi = I) except through the
+        input noise n and the offset error db, both entering as u -> u - n - db:
+        d xi = G (n + db) with G = -tau Ad(T_new) J_r(tau (u - b)) on the pose, and hat(l_i) times
+        G's rotation rows on landmark i. P <- Phi P Phi^T + G Q G^T + Q_b, Phi = I + G E^T."""
+        tau = (utime - self.state_utime) * 1e-6
+        if tau <= 0.0:
+            return
+        xi = tau * np.concatenate([self.held_v - self.b_v, self.held_w - self.b_w])
+        dR, dp = se3_exp(xi)
+        self.p = self.p + self.R @ dp
+        self.R = so3_normalize(self.R @ dR)
+        self.state_utime = utime
+
+        Gp = -tau * se3_adjoint(self.R, self.p) @ se3_right_jacobian(xi)
+        G = np.zeros((self.n, 6))
+        G[:6] = Gp
+        for i, l in enumerate(self.L):
+            G[CORE_DIM + 3 * i:CORE_DIM + 3 * i + 3] = hat3(l) @ Gp[3:6]
+        P = self.P
+        if self.cfg["estimate_input_offsets"]:
+            # Phi P Phi^T = P + G M^T + M G^T with M = P E + G (E^T P E) / 2, E the offset columns.
+            M = P[:, 6:12] + G @ (0.5 * P[6:12, 6:12])
+            P = P + G @ M.T + M @ G.T
+        Q = np.diag([self.var_v] * 3 + [self.var_w] * 3)
+        P = P + G @ Q @ G.T
+        if self.cfg["estimate_input_offsets"]:
+            walk = [self.cfg["linear_offset_walk"] ** 2 * tau] * 3 + [self.cfg["angular_offset_walk"] ** 2 * tau] * 3
+            P[6:12, 6:12] += np.diag(walk)
+        self.P = _symmetric(P)
+
+    def propagate(self, utime, linear, angular):
+        """An IMU sample: predict with the held one to its time, then hold it."""
+        if self.state_utime is None:
+            self.state_utime = utime
+        elif utime <= self.last_imu_utime or utime < self.state_utime:
+            raise ReferenceError(f"IMU sample out of time order at {utime}")
+        else:
+            self._check_silence(utime)
+            self.predict_to(utime)
+        self.held_v, self.held_w = np.asarray(linear, float), np.asarray(angular, float)
+        self.last_imu_utime = utime
+
+    def _check_silence(self, utime):
+        if utime - self.last_imu_utime > self.cfg["max_imu_silence"] * 1e6:
+            raise ReferenceError(f"IMU silent before {utime}: not modelled")
+
+    # ---- the stereo rig at the current pose (core/src/vl_camera.c)
+
+    def camera_point(self, pw):
+        """b = R^T (p_w - p) (IMU frame) and c = Rc b + tc (camera frame); None when behind."""
+        b = self.R.T @ (pw - self.p)
+        c = self.cal.Rc @ b + self.cal.tc
+        return (b, c) if c[2] > MIN_CAMERA_DEPTH else (None, None)
+
+    def triangulate_world(self, y):
+        """l = R b + p with b = Rc^T (c - tc) the triangulated point in the IMU frame; dl/dy."""
+        c, dc_dy = stereo_triangulate(self.cal, y)
+        b = self.cal.Rc.T @ (c - self.cal.tc)
+        return self.R @ b + self.p, self.R @ self.cal.Rc.T @ dc_dy
+
+    def make_row(self, slot, frame, i):
+        """The observation's rows. With b = R^T (l - p), to first order b = b_hat + R^T (rho_i - rho):
+        A = dy/dc Rc R^T on rho_i, -A on rho, zero on phi (the update cannot see rotations of the
+        whole world). None when the landmark is behind the camera."""
+        b, c = self.camera_point(self.L[slot])
+        if b is None:
+            return None
+        y_pred, dy_dc = stereo_project(self.cal, c)
+        A = dy_dc @ self.cal.Rc @ self.R.T
+        H_pose = np.zeros((3, 6))
+        H_pose[:, :3] = -A
+        return Row(slot, i, H_pose, A, compress(frame[i]) - y_pred, stereo_noise(self.var_px))
+
+    def innovation_cov(self, row):
+        """S = H P H^T + R from the nine columns the row touches."""
+        c = CORE_DIM + 3 * row.slot
+        idx = np.r_[0:6, c:c + 3]
+        H = np.hstack([row.H_pose, row.H_landmark])
+        return H @ self.P[np.ix_(idx, idx)] @ H.T + np.diag(row.noise)
+
+    # ---- the frame (core/src/vl_estimator.c, vl_update)
+
+    def update(self, utime, frame):
+        """A stereo frame: predict to it, sort its observations into rows and candidates, fuse the
+        rows, retire ended and broken tracks, admit candidates. Returns False when the joint
+        update was refused (S not positive definite): then vislam-run writes no pose either."""
+        if self.state_utime is None:
+            raise ReferenceError("frame before the first IMU sample")
+        if utime < self.state_utime or (self.last_frame_utime is not None and utime <= self.last_frame_utime):
+            raise ReferenceError(f"frame out of time order at {utime}")
+        self._check_silence(utime)
+        if len(frame) > MAX_FRAME_FEATURES:
+            raise ReferenceError("frame over VL_MAX_FRAME_FEATURES: not modelled")
+        self.predict_to(utime)
+        frame_dt = (utime - self.last_frame_utime) * 1e-6 if self.last_frame_utime is not None else 0.0
+        self.last_frame_utime = utime
+        self.frame_index += 1
+        self.counters["frames"] += 1
+        if self.cfg["mode"] == "imu_only":
+            return True
+        for s in self.slots:
+            s.seen = SEEN_NONE
+        self.broken_obs = []
+        rows, candidates = self.classify(frame, frame_dt)
+        used_before = self.counters["observations_used"]
+        reassoc_before = self.counters["frames_reassociated"]
+        ok = self.fuse(frame, rows)
+        if not ok:
+            self.counters["updates_refused"] += 1
+        if not ok or self.counters["frames_reassociated"] != reassoc_before:
+            self.failed_frame_run += 1
+        elif self.counters["observations_used"] != used_before:
+            self.failed_frame_run = 0
+        if self.cfg["divergence_frames"] > 0 and self.failed_frame_run >= self.cfg["divergence_frames"]:
+            raise ReferenceError("divergence reset: not modelled")
+        self.retire()
+        self.admit(frame, candidates)
+        return ok
+
+    def _plausible(self, o):
+        """The image (2 cx by 2 cy unless configured) widened by image_margin, and max_disparity."""
+        m = self.cfg["image_margin"]
+        w = (self.cfg["image_width"] or 2.0 * self.cal.cx) + m
+        h = (self.cfg["image_height"] or 2.0 * self.cal.cy) + m
+        _, ul, vl, ur, vr = o
+        return (-m <= ul <= w and -m <= ur <= w and -m <= vl <= h and -m <= vr <= h
+                and ul - ur <= self.cfg["max_disparity"])
+
+    def _admissible(self, disparity):
+        return (disparity >= self.cfg["min_disparity"]
+                and self.cal.fx * self.cal.baseline / disparity <= self.cfg["max_depth"])
+
+    def classify(self, frame, frame_dt):
+        """Observations of window landmarks become rows; the others continue (or start) pending
+        tracks, which become candidates after min_track_length frames if consistent."""
+        rows, candidates = [], []
+        slot_of = {s.id: k for k, s in enumerate(self.slots)}
+        for i, o in enumerate(frame):
+            oid = int(o[0])
+            if oid < 0 or not np.all(np.isfinite(o[1:])) or not self._plausible(o):
+                continue
+            disparity = o[1] - o[3]
+            slot = slot_of.get(oid)
+            if slot is not None:
+                s = self.slots[slot]
+                if s.seen != SEEN_NONE:
+                    continue  # the same id twice in one frame
+                s.seen, s.unseen_frames = SEEN, 0
+                if not disparity > 0.0:
+                    continue
+                row = self.make_row(slot, frame, i)
+                if row is not None:
+                    rows.append(row)
+                continue
+            t, duplicate = self._pending_touch(oid)
+            if duplicate:
+                continue
+            if not self._admissible(disparity):
+                if t is not None:
+                    t.frames_seen = 0  # no usable point to compare the next observation with
+                continue
+            if t is None:
+                continue
+            y = compress(o)
+            if t.frames_seen >= 2 and not self._track_consistent(t, y, frame_dt):
+                t.frames_seen = 1
+            t.point, J = self.triangulate_world(y)
+            t.cov = J @ np.diag(stereo_noise(self.var_px)) @ J.T
+            if t.frames_seen >= self.cfg["min_track_length"] and len(candidates) < MAX_FRAME_FEATURES:
+                age = min(t.frames_seen - 1, AGE_CAP)
+                candidates.append((i, disparity * (1.0 + AGE_BONUS * age)))
+        return rows, candidates
+
+    def _pending_touch(self, oid):
+        for t in self.pending:
+            if t.id == oid:
+                if t.last_frame == self.frame_index:
+                    return t, True
+                t.frames_seen += 1
+                t.last_frame = self.frame_index
+                return t, False
+        if len(self.pending) >= MAX_PENDING:
+            return None, False
+        t = Pending(oid, 1, self.frame_index)
+        self.pending.append(t)
+        return t, False
+
+    def _track_consistent(self, t, y, dt):
+        """Does the observation agree with the point the track's previous observation gave? The
+        gate on S = Hx C Hx^T + Hp diag(s_v^2 dt^2, s_w^2 dt^2) Hp^T + R (one step of motion)."""
+        if self.cfg["gate_chi2"] <= 0.0:
+            return True
+        b, c = self.camera_point(t.point)
+        if b is None:
+            return False
+        y_pred, dy_dc = stereo_project(self.cal, c)
+        dy_db = dy_dc @ self.cal.Rc
+        odot = np.hstack([np.eye(3), -hat3(b)])        # d b / d xi (right perturbation) = -odot(b)
+        Hp = -dy_db @ odot
+        Hx = dy_db @ self.R.T
+        Qm = np.diag([self.var_v * dt * dt] * 3 + [self.var_w * dt * dt] * 3)
+        S = Hx @ t.cov @ Hx.T + Hp @ Qm @ Hp.T + np.diag(stereo_noise(self.var_px))
+        return mahalanobis3(S, y - y_pred) <= self.cfg["gate_chi2"]
+
+    # ---- outliers and the joint update (vl_outliers.c, vl_update.c, vl_noise.c)
+
+    def fuse(self, frame, rows):
+        """Gate; a re-associated frame is distrusted as a whole; otherwise RANSAC picks the inliers,
+        the joint update runs on at most max_update_observations of them, the noise adapts, and the
+        rejected rows that agree with the corrected state are rescued in a second update."""
+        cfg, k = self.cfg, len(rows)
+        if k == 0:
+            return True
+        if cfg["gate_chi2"] <= 0.0:
+            return self.apply(rows)
+        inlier = [mahalanobis3(self.innovation_cov(r), r.residual) <= cfg["gate_chi2"] for r in rows]
+        failed = k - sum(inlier)
+        if k >= MIN_ROWS_FOR_REASSOCIATION and failed > cfg["max_broken_fraction"] * k:
+            self.counters["frames_reassociated"] += 1
+            for r in rows:
+                self.slots[r.slot].seen = SEEN_BROKEN
+                self.broken_obs.append(r.obs)
+            if cfg["adaptive_noise"]:
+                self.reassociated_run += 1
+                if self.reassociated_run >= CONTRADICTION_RUN:
+                    self.widen_noise()
+            return True
+        self.reassociated_run = 0
+        if cfg["ransac_hypotheses"] > 0 and k >= 2:
+            inlier = self.ransac(rows, inlier)
+        # The C partition swaps each inlier to the front: inliers keep their order, the rest do not.
+        m = 0
+        for i in range(k):
+            if inlier[i]:
+                rows[m], rows[i] = rows[i], rows[m]
+                inlier[m], inlier[i] = inlier[i], inlier[m]
+                m += 1
+        partitioned, rest = m, k - m
+        cap = int(cfg["max_update_observations"])
+        used = partitioned
+        if cap > 0 and partitioned > cap:  # the time bound: an evenly spread subset
+            for i in range(cap):
+                j = (i * partitioned) // cap
+                rows[i], rows[j] = rows[j], rows[i]
+            used = cap
+        prior_diag = np.diag(self.P)[:6].copy()
+        ok = self.apply(rows[:used])
+        if ok and used > 0 and cfg["adaptive_noise"]:
+            self.adapt_pixel_noise(rows)
+            self.adapt_velocity_noise(prior_diag)
+        if not ok or rest == 0:
+            return ok
+        rescued = []
+        for r in rows[partitioned:]:
+            row = self.make_row(r.slot, frame, r.obs)
+            if row is None:
+                continue
+            if mahalanobis3(self.innovation_cov(row), row.residual) <= cfg["gate_chi2"]:
+                rescued.append(row)
+            else:
+                self.slots[r.slot].seen = SEEN_BROKEN
+                self.broken_obs.append(r.obs)
+        if cap > 0 and used + len(rescued) > cap:
+            rescued = rescued[:cap - used]
+        return self.apply(rescued)
+
+    def ransac(self, rows, inlier):
+        """1-point RANSAC: each hypothesis is the correction one observation alone would give,
+        dx = P H^T S^-1 r; its support, the rows left within ransac_threshold px. The frame index
+        seeds splitmix64, so a replay draws the same hypotheses."""
+        k = len(rows)
+        thr2 = self.cfg["ransac_threshold"] ** 2
+        H = [np.hstack([r.H_pose, r.H_landmark]) for r in rows]
+        cols = [np.r_[0:6, CORE_DIM + 3 * r.slot:CORE_DIM + 3 * r.slot + 3] for r in rows]
+        best, state = 0, self.frame_index
+        for _ in range(min(int(self.cfg["ransac_hypotheses"]), k)):
+            state, draw = splitmix64(state)
+            pick = draw % k
+            PHt = self.P[:, cols[pick]] @ H[pick].T
+            S = H[pick] @ PHt[cols[pick]] + np.diag(rows[pick].noise)
+            try:
+                Lc = np.linalg.cholesky(S)
+            except np.linalg.LinAlgError:
+                continue
+            w = np.linalg.solve(Lc.T, np.linalg.solve(Lc, rows[pick].residual))
+            dx = PHt @ w
+            flags = [float(np.sum((r.residual - Hi @ dx[ci]) ** 2)) <= thr2 for r, Hi, ci in zip(rows, H, cols)]
+            if sum(flags) > best:
+                best, inlier = sum(flags), flags
+        return inlier
+
+    def apply(self, rows):
+        """The joint update: S = H P H^T + R = L L^T, W = P H^T L^-T, dx = W L^-1 r, P <- P - W W^T;
+        then X <- exp(dx) X on SE_{N+1}(3): T <- exp(dx_pose) T, and every landmark turns with the
+        rotation correction and moves by J_l(phi) times its own translation correction."""
+        if not rows:
+            return True
+        n, m = self.n, 3 * len(rows)
+        H = np.zeros((m, n))
+        for j, r in enumerate(rows):
+            c = CORE_DIM + 3 * r.slot
+            H[3 * j:3 * j + 3, 0:6] = r.H_pose
+            H[3 * j:3 * j + 3, c:c + 3] = r.H_landmark
+        PHt = self.P @ H.T
+        S = H @ PHt + np.diag(np.concatenate([r.noise for r in rows]))
+        try:
+            Lc = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            return False
+        W = np.linalg.solve(Lc, PHt.T).T
+        dx = W @ np.linalg.solve(Lc, np.concatenate([r.residual for r in rows]))
+        if not np.all(np.isfinite(dx)):
+            return False
+        self.P = _symmetric(self.P - W @ W.T)
+        self.dx = dx
+        dR, dp = se3_exp(dx[:6])
+        Jl = so3_left_jacobian(dx[3:6])
+        self.R = so3_normalize(dR @ self.R)
+        self.p = dR @ self.p + dp
+        self.b_v = self.b_v + dx[6:9]
+        self.b_w = self.b_w + dx[9:12]
+        self.L = self.L @ dR.T + dx[CORE_DIM:].reshape(-1, 3) @ Jl.T
+        self.counters["observations_used"] += len(rows)
+        return True
+
+    def adapt_pixel_noise(self, rows):
+        """Residual-based covariance matching: after the update, a row's post-fit residual e has
+        E[e^2] = R_rr - (H P+ H^T)_rr, so (e^2 + (H P+ H^T)_rr) / share is a sample of the pixel
+        variance; the median over every row of the frame (outliers included), / 0.455, enters an
+        average that forgets faster the more rows the frame has."""
+        samples = []
+        for r in rows:
+            S = self.innovation_cov(r)
+            c = CORE_DIM + 3 * r.slot
+            e = r.residual - r.H_pose @ self.dx[:6] - r.H_landmark @ self.dx[c:c + 3]
+            samples.extend((e * e + np.diag(S) - r.noise) / STEREO_SHARE)
+        if len(samples) < 3:
+            return
+        sample = np.partition(np.array(samples), len(samples) // 2)[len(samples) // 2] / CHI2_1_MEDIAN
+        w = 1.0 - math.exp(-len(rows) / PIXEL_NOISE_MEMORY)
+        self.var_px = _clamp_var((1.0 - w) * self.var_px + w * sample, self.cfg["pixel"])
+
+    def adapt_velocity_noise(self, prior_diag):
+        """Covariance matching on the pose correction, E[dx dx^T] = P- - P+: each block's variance
+        moves by gain x log(seen / expected), the gain weighted by how much the frame informed it."""
+        for b, (name, key) in enumerate((("var_v", "linear_velocity"), ("var_w", "angular_velocity"))):
+            blk = slice(3 * b, 3 * b + 3)
+            prior = prior_diag[blk].sum()
+            expected = (prior_diag[blk] - np.diag(self.P)[blk]).sum()
+            seen = float(self.dx[blk] @ self.dx[blk])
+            if not expected > VELOCITY_MIN_INFORMATION * prior or not prior > 0.0:
+                continue
+            ratio = min(max(seen / expected, VELOCITY_RATIO_MIN), VELOCITY_RATIO_MAX)
+            gain = VELOCITY_NOISE_GAIN * (expected / prior)
+            setattr(self, name, _clamp_var(getattr(self, name) * math.exp(gain * math.log(ratio)), self.cfg[key]))
+
+    def widen_noise(self):
+        """Frame after frame contradicting the prior: every noise x4 (within the bounds)."""
+        self.var_v = _clamp_var(self.var_v * WIDEN_ON_CONTRADICTION, self.cfg["linear_velocity"])
+        self.var_w = _clamp_var(self.var_w * WIDEN_ON_CONTRADICTION, self.cfg["angular_velocity"])
+        self.var_px = _clamp_var(self.var_px * WIDEN_ON_CONTRADICTION, self.cfg["pixel"])
+
+    # ---- the window (core/src/vl_window.c)
+
+    def marginalize(self, slot):
+        """Drop the landmark's rows and columns (the exact Gaussian marginal); the last slot moves
+        into its place, as in the C code, so the slot order stays the same."""
+        last = len(self.slots) - 1
+        idx = np.arange(self.n)
+        if slot != last:
+            c, cl = CORE_DIM + 3 * slot, CORE_DIM + 3 * last
+            idx[c:c + 3] = idx[cl:cl + 3]
+            self.slots[slot] = self.slots[last]
+            self.L[slot] = self.L[last]
+        idx = idx[:-3]
+        self.P = self.P[np.ix_(idx, idx)]
+        self.slots.pop()
+        self.L = self.L[:-1]
+
+    def retire(self):
+        """Tracks that broke or ended (unseen more than max_unseen_frames) leave the window."""
+        for s in range(len(self.slots) - 1, -1, -1):
+            slot = self.slots[s]
+            if slot.seen == SEEN_BROKEN:
+                self.marginalize(s)
+            elif slot.seen == SEEN_NONE:
+                slot.unseen_frames += 1
+                if slot.unseen_frames > self.cfg["max_unseen_frames"]:
+                    self.marginalize(s)
+
+    def admit(self, frame, candidates):
+        """Candidates (and restarts of broken tracks, by disparity) best first; when the window is
+        full, room only by evicting a landmark not observed now (the longest unseen)."""
+        for i in self.broken_obs:
+            disparity = frame[i][1] - frame[i][3]
+            if self._admissible(disparity) and len(candidates) < MAX_FRAME_FEATURES:
+                candidates.append((i, disparity))
+        candidates = sorted(candidates, key=lambda c: -c[1])  # stable, as the C insertion sort
+        for i, _ in candidates:
+            if len(self.slots) >= self.cfg["max_landmarks"]:
+                victim, longest = -1, 0
+                for s, slot in enumerate(self.slots):
+                    if slot.seen == SEEN_NONE and slot.unseen_frames >= longest:
+                        victim, longest = s, slot.unseen_frames
+                if victim < 0:
+                    break
+                self.marginalize(victim)
+            self.admit_landmark(int(frame[i][0]), compress(frame[i]))
+            for t in self.pending:
+                if t.id == int(frame[i][0]):
+                    t.id = -1
+                    break
+        self.pending = [t for t in self.pending if t.last_frame == self.frame_index and t.id >= 0]
+
+    def admit_landmark(self, oid, y):
+        """l = R b + p from stereo; in invariant coordinates its error is rho plus the pixel part:
+        P_ln = [I 0] P_pose,: and P_ll = P_rho,rho + J_y diag(R) J_y^T (exact to first order)."""
+        l, J_obs = self.triangulate_world(y)
+        n = self.n
+        P = np.zeros((n + 3, n + 3))
+        P[:n, :n] = self.P
+        P[n:, :n] = self.P[0:3, :n]
+        P[:n, n:] = P[n:, :n].T
+        C = self.P[0:3, 0:3] + J_obs @ np.diag(stereo_noise(self.var_px)) @ J_obs.T
+        P[n:, n:] = 0.5 * (C + C.T)
+        self.P = P
+        self.L = np.vstack([self.L, l])
+        self.slots.append(Slot(oid, 0, SEEN))
+        self.counters["landmarks_initialized"] += 1
+
+
+def _symmetric(P):
+    """The lower triangle mirrored, as the C code keeps P exactly symmetric."""
+    lower = np.tril(P)
+    return lower + np.tril(P, -1).T
+
+
+def _clamp_var(var, configured_std):
+    lo = configured_std ** 2 / NOISE_ADAPT_RANGE ** 2
+    hi = configured_std ** 2 * NOISE_ADAPT_RANGE ** 2
+    return min(max(var, lo), hi)
+
+
+# ------------------------------------------------------------------------------------- runs
+
+def read_log(path):
+    """The inputs of an LCM log in order: ("calib", utime, Calibration), ("imu", utime, v, w) and
+    ("frame", utime, array of (id, u_left, v_left, u_right, v_right))."""
+    vislam, lcm = load(), load_lcm()
+    events = []
+    log = lcm.EventLog(str(path), "r")
+    for ev in log:
+        if ev.channel == channels.CALIBRATION:
+            m = vislam.calibration_t.decode(ev.data)
+            cal = Calibration(m.fx, m.fy, m.cx, m.cy, m.baseline, np.array(m.cam_T_imu, float).reshape(4, 4))
+            events.append(("calib", m.utime, cal))
+        elif ev.channel == channels.IMU:
+            m = vislam.imu_t.decode(ev.data)
+            events.append(("imu", m.utime, np.array(m.linear_velocity), np.array(m.angular_velocity)))
+        elif ev.channel == channels.FEATURES:
+            m = vislam.stereo_frame_t.decode(ev.data)
+            k = m.num_features
+            obs = np.column_stack([np.array(m.id[:k], float), m.u_left[:k], m.v_left[:k],
+                                   m.u_right[:k], m.v_right[:k]]) if k else np.zeros((0, 5))
+            events.append(("frame", m.utime, obs))
+    log.close()
+    return events
+
+
+@dataclass
+class Run:
+    """What a reference run gives: one pose per used frame, and the time of every step (s)."""
+    utimes: list
+    rotations: list
+    positions: list
+    update_seconds: list
+    propagate_seconds: list
+    counters: dict
+
+
+def run(events, cfg, max_steps=None):
+    """Feeds the events to a Filter as vislam-run's session does: the first calibration starts it,
+    inputs before it are dropped; one pose per frame whose update was not refused."""
+    f = None
+    out = Run([], [], [], [], [], {})
+    frames = 0
+    for ev in events:
+        if ev[0] == "calib":
+            if f is None:
+                f = Filter(cfg, ev[2])
+            elif not _same_calibration(ev[2], f.cal):
+                raise ReferenceError("calibration changed: not modelled")
+            continue
+        if f is None:
+            continue
+        if ev[0] == "imu":
+            t0 = time.perf_counter()
+            f.propagate(ev[1], ev[2], ev[3])
+            out.propagate_seconds.append(time.perf_counter() - t0)
+            continue
+        if f.state_utime is None:
+            continue  # refused as VL_ERR_NOT_READY
+        t0 = time.perf_counter()
+        ok = f.update(ev[1], ev[2])
+        out.update_seconds.append(time.perf_counter() - t0)
+        if ok:
+            out.utimes.append(ev[1])
+            out.rotations.append(f.R.copy())
+            out.positions.append(f.p.copy())
+        frames += 1
+        if max_steps is not None and frames >= max_steps:
+            break
+    if f is not None:
+        out.counters = dict(f.counters)
+    return out
+
+
+def _same_calibration(a, b):
+    return (np.array_equal(a.cam_T_imu, b.cam_T_imu)
+            and (a.fx, a.fy, a.cx, a.cy, a.baseline) == (b.fx, b.fy, b.cx, b.cy, b.baseline))
+
+
+def tum_line(utime, R, p):
+    """A trajectory line in vislam-run's format (time from the integer microseconds, %.9f)."""
+    w, x, y, z = rot_to_quat(R)
+    sign = "-" if utime < 0 else ""
+    mag = abs(utime)
+    return (f"{sign}{mag // 1000000}.{mag % 1000000:06d} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} "
+            f"{x:.9f} {y:.9f} {z:.9f} {w:.9f}\n")
+
+
+def write_tum(path, result):
+    with open(path, "w") as f:
+        for u, R, p in zip(result.utimes, result.rotations, result.positions):
+            f.write(tum_line(u, R, p))
