@@ -9,6 +9,7 @@
 #include "vl_linalg.h"
 #include "vl_se3.h"
 #include "vl_stereo.h"
+#include "vl_work.h"
 
 static vl_estimator_t est;
 
@@ -615,6 +616,84 @@ void test_update_uses_at_most_max_update_observations(void)
     TEST_ASSERT_EQUAL_UINT32(12, vl_window_size(&est)); /* deferred, not dropped */
 }
 
+/* Two frames of the same n tracks at rest: the second updates with the window full of them. */
+static const vl_counters_t *update_window_of(vl_config_t *cfg, uint32_t n)
+{
+    static vl_stereo_frame_t frame;
+    vl_imu_sample_t s = start_at(cfg, 0);
+    make_frame(cfg, &frame, 0, n, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(n, vl_window_size(&est));
+    s.utime = 100000;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(cfg, &frame, 100000, n, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    return vl_get_counters(&est);
+}
+
+/* The largest observation count whose joint update on n states fits the budget (flops). */
+static uint32_t observations_within(uint32_t n, uint64_t budget)
+{
+    uint32_t k = 1;
+    while (vl_work_joint_update(n, k + 1u) <= budget) {
+        ++k;
+    }
+    return k;
+}
+
+void test_update_work_bound_uses_fewer_observations_in_a_larger_window(void)
+{
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.max_update_observations = 0;
+    const uint64_t budget = vl_work_joint_update(VL_CORE_DIM + 3u * 40u, 10u);
+    cfg.max_update_work = (double)budget * 1e-6;
+
+    const vl_counters_t *c = update_window_of(&cfg, 40);
+    TEST_ASSERT_EQUAL_UINT64(10, c->observations_used);
+    TEST_ASSERT_EQUAL_UINT64(30, c->observations_deferred);
+    vl_work_t w;
+    vl_get_work(&est, &w);
+    TEST_ASSERT_EQUAL_UINT32(30, w.rows);
+    TEST_ASSERT_EQUAL_UINT32(40, vl_window_size(&est)); /* deferred, not dropped */
+
+    /* The same budget in a smaller window buys more observations. */
+    const uint32_t expected = observations_within(VL_CORE_DIM + 3u * 20u, budget);
+    TEST_ASSERT_GREATER_THAN_UINT32(10, expected);
+    c = update_window_of(&cfg, 20);
+    TEST_ASSERT_EQUAL_UINT64(expected, c->observations_used);
+
+    /* A budget too small for any observation still uses one. */
+    cfg.max_update_work = 1e-9;
+    c = update_window_of(&cfg, 20);
+    TEST_ASSERT_EQUAL_UINT64(1, c->observations_used);
+    TEST_ASSERT_EQUAL_UINT64(19, c->observations_deferred);
+}
+
+void test_admissions_per_frame_are_bounded_and_the_rest_wait(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.max_admissions = 5;
+    vl_imu_sample_t s = start_at(&cfg, 0);
+    const uint32_t expected[3] = {5, 10, 12};
+    for (int f = 0; f < 3; ++f) {
+        s.utime = 100000 * (int64_t)f;
+        if (f > 0) {
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        }
+        make_frame(&cfg, &frame, s.utime, 12, 0); /* the same 12 tracks, at rest */
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+        TEST_ASSERT_EQUAL_UINT32(expected[f], vl_window_size(&est));
+    }
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(12, c->landmarks_initialized);
+    TEST_ASSERT_EQUAL_UINT64(7 + 2, c->landmarks_deferred);
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -637,6 +716,8 @@ int main(void)
     RUN_TEST(test_window_admits_the_largest_disparity_first);
     RUN_TEST(test_get_landmarks_reports_capacity_shortfall);
     RUN_TEST(test_update_uses_at_most_max_update_observations);
+    RUN_TEST(test_update_work_bound_uses_fewer_observations_in_a_larger_window);
+    RUN_TEST(test_admissions_per_frame_are_bounded_and_the_rest_wait);
     RUN_TEST(test_update_counts_a_repeated_image_and_nothing_else);
     return UNITY_END();
 }

@@ -317,7 +317,7 @@ section_sweep() {
     "no_restarts|outliers.max_broken_fraction=1.0"
     "plain_ekf|outliers.gate_chi2=0"
     "track_len_1|landmarks.min_track_length=1"
-    "all_obs|estimator.max_update_observations=0")
+    "all_obs|estimator.max_update_observations=0;estimator.max_update_work=0")
   run_list() { # run_list ROWS LOG DATA-LABEL ENTRY...
     local rows=$1 runlog=$2 label=$3 name kvs kv sec key settings
     shift 3
@@ -401,7 +401,7 @@ section_window() {
   say "Wall time per call from vislam-run --timing (single run each, as fast as possible, build $BUILD,"
   say "VL_NATIVE=${native:-?}). Counters from --stats-json: landmarks deferred (new landmarks refused"
   say "for lack of room), landmarks evicted (pushed out of the window early to make room), observations"
-  say "deferred (left out of a frame's update by [estimator] max_update_observations, where the build has it)."
+  say "deferred (left out of a frame's update by [estimator] max_update_observations or max_update_work, where the build has them)."
   say ""
   table window "$rows"
   end_section

@@ -39,6 +39,7 @@ void vl_config_preset_seed(vl_config_t *cfg)
     cfg->ransac_hypotheses = 0;
     cfg->max_broken_fraction = 1.0;
     cfg->max_update_observations = 0;
+    cfg->max_update_work = 0.0;
     cfg->adaptive_noise = 0;
     cfg->min_track_length = 1;
     cfg->min_disparity = 1e-6;

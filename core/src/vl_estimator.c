@@ -293,7 +293,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     uint32_t rescued = vl_outliers_rescue(e, frame, rows, partitioned, rest);
     e->counters.observations_rescued += rescued;
     e->counters.observations_gated += rest - rescued;
-    const uint32_t cap = e->cfg.max_update_observations;
+    const uint32_t cap = vl_rows_cap(e);
     if (cap > 0 && inliers + rescued > cap) {
         e->counters.observations_deferred += inliers + rescued - cap;
         rescued = cap - inliers;

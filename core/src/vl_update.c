@@ -12,6 +12,7 @@
 #include "vl_estimator_internal.h"
 #include "vl_se3.h"
 #include "vl_stereo.h"
+#include "vl_work.h"
 
 /*
  * With b = R^T (l - p), to first order b = b_hat + R^T (rho_i - rho): the rows are
@@ -61,10 +62,29 @@ void vl_rows_swap(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t a, uint32_t b)
     e->work_frame_obs[b] = f;
 }
 
+uint32_t vl_rows_cap(const vl_estimator_t *e)
+{
+    uint32_t cap = e->cfg.max_update_observations;
+    if (e->cfg.max_update_work > 0.0) {
+        /* The largest count whose update fits the budget (the cost grows with the
+         * count), but never none: a frame always corrects the state. */
+        const uint32_t n = vl_state_dim(e);
+        const double budget = e->cfg.max_update_work * 1e6;
+        uint32_t k = 1;
+        while (k < VL_MAX_FRAME_FEATURES && (double)vl_work_joint_update(n, k + 1u) <= budget) {
+            ++k;
+        }
+        if (cap == 0 || k < cap) {
+            cap = k;
+        }
+    }
+    return cap;
+}
+
 /* The others stay in the window and are used in later frames. */
 uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m)
 {
-    const uint32_t cap = e->cfg.max_update_observations;
+    const uint32_t cap = vl_rows_cap(e);
     if (cap == 0 || m <= cap) {
         return m;
     }

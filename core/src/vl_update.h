@@ -24,7 +24,13 @@ int vl_update_make_row(const vl_estimator_t *e, uint32_t slot, const vl_stereo_o
 void vl_rows_swap(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t a, uint32_t b);
 
 /**
- * The time bound: when more than max_update_observations rows are given, an
+ * Most observations one frame's updates may use now: max_update_observations,
+ * lowered by max_update_work at the current state size (at least 1); 0 = all.
+ */
+uint32_t vl_rows_cap(const vl_estimator_t *e);
+
+/**
+ * The time bound: when more than vl_rows_cap rows are given, an
  * evenly spread subset of that many moves to the front and the others are
  * counted as deferred. Returns how many rows the update uses.
  */

@@ -348,8 +348,13 @@ void vl_window_admit(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_candi
         }
         c->item[j] = item;
     }
+    const uint32_t limit = e->cfg.max_admissions;
     for (uint32_t i = 0; i < c->count; ++i) {
         const vl_stereo_obs_t *o = &frame->obs[c->item[i].obs];
+        if (limit > 0 && i >= limit) {
+            e->counters.landmarks_deferred += c->count - i;
+            break;
+        }
         if (e->num_landmarks >= e->cfg.max_landmarks) {
             const int victim = eviction_victim(e);
             if (victim < 0) {

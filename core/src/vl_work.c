@@ -26,8 +26,7 @@ static void add(vl_estimator_t *e, uint64_t *stage, uint64_t flops)
     e->work.flops += flops;
 }
 
-/* The joint update with k observations (m = 3k rows) on n states, as vl_la_update does it. */
-static uint64_t joint_update(uint32_t n_states, uint32_t k_obs)
+uint64_t vl_work_joint_update(uint32_t n_states, uint32_t k_obs)
 {
     if (k_obs == 0) {
         return 0;
@@ -78,7 +77,7 @@ void vl_work_ransac(vl_estimator_t *e, uint32_t n, uint32_t k, uint32_t hypothes
 
 void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint32_t k_frame)
 {
-    uint64_t flops = joint_update(n, k);
+    uint64_t flops = vl_work_joint_update(n, k);
     if (adapted) {
         /* Pixel noise: each row's posterior check and residual, a median of 3 k values;
          * velocity noise: a few 3-vectors. */
@@ -91,7 +90,7 @@ void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint
 
 void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued)
 {
-    add(e, &e->work.rescue, (uint64_t)checked * (VL_WORK_ROW + VL_WORK_OBS_CHECK) + joint_update(n, rescued));
+    add(e, &e->work.rescue, (uint64_t)checked * (VL_WORK_ROW + VL_WORK_OBS_CHECK) + vl_work_joint_update(n, rescued));
     e->work.rows += 3u * rescued;
 }
 

@@ -9,6 +9,12 @@
 
 #include "vislam/vislam.h"
 
+/**
+ * Flops of the joint update with k observations (m = 3k rows) on n states, as
+ * vl_la_update does it; also what max_update_work bounds.
+ */
+uint64_t vl_work_joint_update(uint32_t n_states, uint32_t k_obs);
+
 /** Starts a vl_propagate or vl_update call: its work so far is zero. */
 void vl_work_begin(vl_estimator_t *e);
 

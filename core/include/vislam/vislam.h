@@ -223,10 +223,10 @@ typedef struct {
     X(uint64_t, observations_used, "applied in an update")                                                          \
     X(uint64_t, observations_gated, "refused as outliers (RANSAC or gate, and not rescued)")                        \
     X(uint64_t, observations_rescued, "outliers of the first pass accepted after the correction")                   \
-    X(uint64_t, observations_deferred, "inliers left out of an update by max_update_observations")                  \
+    X(uint64_t, observations_deferred, "inliers left out by max_update_observations or max_update_work")            \
     X(uint64_t, observations_behind_camera, "predicted behind the camera: not used")                                \
     X(uint64_t, landmarks_initialized, "admitted to the window")                                                    \
-    X(uint64_t, landmarks_deferred, "admissions postponed because the window was full")                             \
+    X(uint64_t, landmarks_deferred, "admissions postponed: the window was full, or max_admissions reached")         \
     X(uint64_t, tracks_inconsistent, "candidate observations that disagreed with their track's previous one")       \
     X(uint64_t, frames_reassociated, "frames whose tracked observations were all distrusted")                       \
     X(uint64_t, frames_repeated, "frames repeating the previous frame's pixels exactly (a stale image)")            \

@@ -82,6 +82,15 @@ typedef enum {
       "Most observations one update uses (0: all). A time bound: the update costs about " \
       "(12 + 3 landmarks)^2 x 3 observations; the inliers left out (evenly spread) stay in the " \
       "window for later frames.") \
+    /* Off by default: at 40 Mflop (0027 unchanged, the costliest update of 0034 down 16%) the \
+       rows it defers enter the pixel noise adaptation's post-fit median unfitted, and on a dense \
+       simulated drive with the pixel noise set 10x too low that estimate overshoots (README). */ \
+    X("estimator", "max_update_work", max_update_work, DOUBLE, 0.0, 0.0, DBL_MAX, 0, "Mflop", \
+      "Most arithmetic one frame's joint updates may do, in millions of floating-point " \
+      "operations (0: no bound). The update with n states and m rows costs about " \
+      "n^2 m + n m^2 + m^3 / 3 flops, so the bound admits fewer observations the larger the " \
+      "window: a flat worst case. At least one observation is always used; the inliers left " \
+      "out (evenly spread) stay in the window for later frames.") \
     \
     /* ---- [noise] ---- */ \
     /* The seed data's velocities carry about 0.5 m/s and 0.05 rad/s of noise per sample \
@@ -113,6 +122,10 @@ typedef enum {
       "No landmark starts from an observation with a smaller disparity u_left - u_right.") \
     X("landmarks", "max_depth", max_depth, DOUBLE, 150.0, 0.0, DBL_MAX, 1, "m", \
       "No landmark starts farther away than this.") \
+    X("landmarks", "max_admissions", max_admissions, UINT32, 0, 0, UINT32_MAX, 0, "", \
+      "Most landmarks admitted in one frame (0: no bound), the best-ranked first. The other " \
+      "candidates wait (landmarks_deferred) and compete again in the next frame, so a burst of " \
+      "new tracks grows the state over several frames.") \
     X("landmarks", "min_track_length", min_track_length, UINT32, 2, 1, UINT32_MAX, 0, "", \
       "Frames a new track must span before its landmark is admitted. From the second frame on, " \
       "the track must also agree with its previous observation (gate_chi2).") \
