@@ -281,9 +281,9 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
         prior_diag[i] = *vl_P_at(e, i, i);
     }
     vl_status_t st = vl_update_apply(e, rows, inliers);
-    vl_work_update(e, n, inliers, st == VL_OK && inliers > 0 && e->cfg.adaptive_noise, k);
+    vl_work_update(e, n, inliers, st == VL_OK && inliers > 0 && e->cfg.adaptive_noise, inliers + rest);
     if (st == VL_OK && inliers > 0 && e->cfg.adaptive_noise) {
-        vl_noise_adapt_pixel(e, rows, k);
+        vl_noise_adapt_pixel(e, rows, inliers, partitioned, k);
         vl_noise_adapt_velocity(e, prior_diag);
     }
     if (st != VL_OK || rest == 0) {

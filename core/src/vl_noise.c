@@ -69,20 +69,17 @@ static double select_kth(double *v, uint32_t n, uint32_t k)
 }
 
 /*
- * Residual-based covariance matching for the pixel noise, made robust. After the
- * update, an observation's post-fit residual e has E[e e^T] = R - H P+ H^T, so
- * each row gives (e_r^2 + (H P+ H^T)_rr) / w_r as a sample of the pixel variance
- * (w_r the row's share: 1, 1/2, 1). The median over every row of the frame,
- * outliers included, scaled to a variance, is blind to a minority of outliers
- * and is not truncated by the inlier selection. It enters an average that
- * forgets faster the more rows a frame has.
+ * Appends each row's pixel variance sample of rows[from, to) to samples[*n ...),
+ * one per coordinate (w_r its share of the pixel variance: 1, 1/2, 1). A row the
+ * update fitted has a post-fit residual with E[e e^T] = R - H P+ H^T; a row it
+ * left out (deferred by the time bound, or rejected) keeps an error independent
+ * of the correction, E[e e^T] = R + H P+ H^T. fitted is +1 or -1 accordingly.
  */
-void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
+static void pixel_samples(const vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t from, uint32_t to, double fitted,
+                          double *samples, uint32_t *n)
 {
     static const double share[3] = {1.0, 0.5, 1.0};
-    double samples[VL_OBS_DIM * VL_MAX_LANDMARKS];
-    uint32_t n = 0;
-    for (uint32_t i = 0; i < k; ++i) {
+    for (uint32_t i = from; i < to; ++i) {
         double S[9];
         vl_la_obs_covariance(e->P, VL_LD, &rows[i], S); /* H P+ H^T + R */
         for (int r = 0; r < 3; ++r) {
@@ -93,14 +90,32 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k
             for (int j = 0; j < 3; ++j) {
                 res -= rows[i].H_landmark[3 * r + j] * e->work_dx[rows[i].landmark_col + j];
             }
-            samples[n++] = (res * res + S[4 * r] - rows[i].noise_var[r]) / share[r];
+            samples[(*n)++] = (res * res + fitted * (S[4 * r] - rows[i].noise_var[r])) / share[r];
         }
     }
+}
+
+/*
+ * Residual-based covariance matching for the pixel noise, made robust: each row
+ * the update used and each row it rejected (outliers included) gives a sample of
+ * the pixel variance; their median, scaled to a variance, is blind to a minority
+ * of outliers and is not truncated by the inlier selection. It enters an average
+ * that forgets faster the more rows a frame has. Inliers the time bound deferred
+ * are left out: on the seed drives and the simulator they measured no better
+ * than without them, and worse on 0027 (README, Accuracy).
+ */
+void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t used, uint32_t first_rejected,
+                          uint32_t k)
+{
+    double samples[VL_OBS_DIM * VL_MAX_LANDMARKS];
+    uint32_t n = 0;
+    pixel_samples(e, rows, 0, used, 1.0, samples, &n);
+    pixel_samples(e, rows, first_rejected, k, -1.0, samples, &n);
     if (n < 3u) {
         return;
     }
     const double sample = select_kth(samples, n, n / 2u) / VL_CHI2_1_MEDIAN;
-    const double w = 1.0 - exp(-(double)k / VL_PIXEL_NOISE_MEMORY);
+    const double w = 1.0 - exp(-(double)(n / VL_OBS_DIM) / VL_PIXEL_NOISE_MEMORY);
     e->pixel_var = clamp_var((1.0 - w) * e->pixel_var + w * sample, e->cfg.pixel_noise);
 }
 

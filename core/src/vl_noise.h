@@ -18,10 +18,14 @@
 #define VL_NOISE_CONTRADICTION_RUN 2u
 
 /**
- * Pixel noise from the post-fit residuals of every row of the frame (rows[0 .. k),
- * outliers included), after an update that left its correction in e->work_dx.
+ * Pixel noise from the post-fit residuals of the frame's rows after an update
+ * that left its correction in e->work_dx: the rows it used (rows[0 .. used)) and
+ * the rejected ones (rows[first_rejected .. k), outliers included). Inliers the
+ * update deferred (rows[used .. first_rejected)) were not fitted, so their
+ * residuals say nothing about the pixel noise.
  */
-void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k);
+void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t used, uint32_t first_rejected,
+                          uint32_t k);
 
 /**
  * Velocity noise from the pose correction in e->work_dx against the pose
