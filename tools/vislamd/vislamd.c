@@ -103,7 +103,7 @@ typedef enum { STEP_PROPAGATE = 0, STEP_UPDATE = 1 } step_kind_t;
    vislam-latency's in-process pass times, so that end to end minus this is LCM's share. */
 typedef struct {
     int64_t utime; /**< the frame's utime, us (the pose's utime) */
-    int64_t ns;    /**< vl_session_input less on_pose, CLOCK_MONOTONIC ns */
+    int64_t ns;    /**< vl_session_input less its publishing (sink_ns), CLOCK_MONOTONIC ns */
 } step_sample_t;
 
 /* The daemon's own counts; the inputs' are the session's (vl_session_counters). */
@@ -149,7 +149,7 @@ typedef struct {
     int64_t last_overrun_log_us;
     uint64_t overruns_unlogged;
     uint64_t overruns_at_status; /* "since the last status" for BUDGET_OVERRUN */
-    int64_t sink_ns;             /* time in on_pose during the current step, ns */
+    int64_t sink_ns;             /* time publishing (poses, statuses) during the current step, ns */
     step_sample_t *step_samples; /* --step-samples: STEP_SAMPLES_MAX, allocated at start-up */
     size_t num_step_samples;
     uint64_t step_samples_dropped;
@@ -482,7 +482,9 @@ static void on_event(void *user, vl_session_event_t event, int64_t utime)
     (void)utime;
     if (event == VL_SESSION_EVENT_REINITIALIZED) {
         d->have_prev_imu = 0;
+        const int64_t t0 = vl_clock_monotonic_ns();
         publish_status(d);
+        d->sink_ns += vl_clock_monotonic_ns() - t0; /* an output, not the step (see on_pose) */
     } else if (event == VL_SESSION_EVENT_CALIBRATED && !d->opt.quiet) {
         fprintf(stderr, "vislamd: calibration received; estimating\n");
     }
