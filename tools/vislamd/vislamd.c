@@ -187,7 +187,7 @@ static void usage(FILE *f)
             "                          flushed line by line; appended to, never truncated: a restart\n"
             "                          adds a '# ...' comment line and its run after the earlier one\n"
             "  --step-samples FILE     at exit, one line per frame stepped: its utime (us) and the step's\n"
-            "                          time (ns: vl_session_input less publishing the pose); kept in memory\n"
+            "                          time (ns: vl_session_input less what it publishes); kept in memory\n"
             "                          for the first %d frames (vislam-latency's LCM overhead)\n"
             "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
             "                          of the last %d IMU intervals; %d us until known)\n"
