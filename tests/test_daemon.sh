@@ -14,8 +14,8 @@
 #   3. SIGTERM mid-run: exit 0, the trajectory is a complete prefix of the offline one ending
 #      at the last frame whose pose was published, and a final status was published.
 #   4. heap allocations after start-up (LD_PRELOAD counter, reporting to its own file; the
-#      daemon keeps --step-samples and writes them at exit): none in the main thread; the process total (LCM's receive thread, first sight of each channel)
-#      stays bounded.
+#      daemon keeps --step-samples and writes them at exit): none in the main thread; the
+#      process total (LCM's receive thread, first sight of each channel) stays bounded.
 #      An empty ALLOC_COUNTER_SO (sanitizer builds: ASan owns malloc) skips this check.
 #   5. calibration from the config file alone (no VISLAM_CALIB on the wire): the daemon estimates,
 #      and equals vislam-run with the same config.
