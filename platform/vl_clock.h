@@ -1,6 +1,6 @@
 /**
  * @file vl_clock.h
- * @brief Clocks in microseconds and absolute-deadline sleeping.
+ * @brief Clocks in microseconds (nanoseconds for timing short steps) and absolute-deadline sleeping.
  *
  * CLOCK_MONOTONIC is for measuring durations and scheduling (it never jumps);
  * CLOCK_REALTIME only for stamping messages with wall-clock time.
@@ -16,6 +16,9 @@ extern "C" {
 
 /** CLOCK_MONOTONIC in microseconds (arbitrary origin, never jumps). */
 int64_t vl_clock_monotonic_us(void);
+
+/** CLOCK_MONOTONIC in nanoseconds (same origin as vl_clock_monotonic_us): for timing one step. */
+int64_t vl_clock_monotonic_ns(void);
 
 /** CLOCK_REALTIME in microseconds since the Unix epoch. */
 int64_t vl_clock_realtime_us(void);

@@ -9,12 +9,13 @@
 #   1. counts: every IMU sample and frame of data/sample.lcmlog gives one VISLAM_POSE and one
 #      POSE; the status messages' contents are consistent (decoded from an lcm-logger log).
 #   2. equivalence: the daemon's trajectory under a --lockstep replay is byte-identical to
-#      vislam-run's on the same log.
+#      vislam-run's on the same log; its --step-samples hold one line per frame, in the
+#      trajectory's order, each with a positive step time (ns).
 #   3. SIGTERM mid-run: exit 0, the trajectory is a complete prefix of the offline one ending
 #      at the last frame whose pose was published, and a final status was published.
-#   4. heap allocations after start-up (LD_PRELOAD counter, reporting to its own file): none in
-#      the main thread; the process total (LCM's receive thread, first sight of each channel)
-#      stays bounded.
+#   4. heap allocations after start-up (LD_PRELOAD counter, reporting to its own file; the
+#      daemon keeps --step-samples and writes them at exit): none in the main thread; the
+#      process total (LCM's receive thread, first sight of each channel) stays bounded.
 #      An empty ALLOC_COUNTER_SO (sanitizer builds: ASan owns malloc) skips this check.
 #   5. calibration from the config file alone (no VISLAM_CALIB on the wire): the daemon estimates,
 #      and equals vislam-run with the same config.
@@ -93,7 +94,8 @@ LAST_UTIME=$(tail -n 1 "$OUT/offline.tum" | awk '{ split($1, t, "."); printf "%d
 # ---- run A: full lockstep replay at 4x ---------------------------------------------------------
 echo "== run A: vislamd + vislam-replay --lockstep --speed 4"
 start_recording a '(VISLAM_IMU|VISLAM_FEATURES|VISLAM_CALIB|VISLAM_POSE|POSE|VISLAM_STATUS)' "$OUT/a.daemon.err" -- \
-  env VL_ALLOC_REPORT="$OUT/a.alloc" ${ALLOC_SO:+LD_PRELOAD="$ALLOC_SO"} "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/a.tum"
+  env VL_ALLOC_REPORT="$OUT/a.alloc" ${ALLOC_SO:+LD_PRELOAD="$ALLOC_SO"} "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/a.tum" \
+  --step-samples "$OUT/a.steps"
 check "run A: the daemon's first status recorded before any input" eq $? 0
 "$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 4 --timeout-ms 5000 \
   --summary-json "$OUT/a.replay.json" 2>"$OUT/a.replay.err"
@@ -136,6 +138,9 @@ check "final status: health has no flag but (possibly) overrun; overruns <= step
 
 # (2) equivalence with the offline run
 check "daemon trajectory (lockstep) byte-identical to vislam-run's" cmp "$OUT/a.tum" "$OUT/offline.tum"
+check "--step-samples: a line per frame, the trajectory's utimes in order, each step > 0 ns" cmp \
+  <(awk '$2 > 0 { print $1 }' "$OUT/a.steps") \
+  <(awk '!/^#/ { split($1, t, "."); printf "%d%06d\n", t[1], t[2] }' "$OUT/offline.tum")
 
 # (4) allocations after start-up
 if [ -n "$ALLOC_SO" ]; then

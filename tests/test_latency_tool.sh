@@ -8,7 +8,10 @@
 #   passes (frames counted by vl_log_inspect), the work per step is positive with max >= p50,
 #   and the jitter probe ran.
 # e2e: the same plus vislamd over LCM, in a private network namespace (exit 77, CTest's skip,
-#   when unshare --net is not permitted): every frame's pose came back, one sample per step.
+#   when unshare --net is not permitted): every frame's pose came back, one sample per step; the
+#   LCM overhead has one sample per frame, 0 <= min <= p50 <= p99 <= max, and each frame's equals
+#   its end-to-end latency (the replay's --latency-samples, kept in --work-dir) less vislamd's step
+#   for the same utime (its --step-samples), recomputed here, and is below that latency.
 # No -e: every check runs and is reported; the exit status counts the failed ones.
 set -uo pipefail
 
@@ -36,10 +39,10 @@ trap 'rm -rf "$OUT"' EXIT
 
 # The JSON's facts as "key value" lines, for value/eq/le below.
 facts() {
-  "$PYTHON" - "$1" <<'PY'
-import json, sys
+  "$PYTHON" - "$1" "$2" "$PASSES" <<'PY'
+import json, os, sys
 d = json.load(open(sys.argv[1]))
-keys = ["window", "steps", "step_us", "e2e_us", "jitter_floor_us", "overruns", "work"]
+keys = ["window", "steps", "step_us", "e2e_us", "lcm_overhead_us", "jitter_floor_us", "overruns", "work"]
 print("keys_ok", int(all(k in d for k in keys)))
 def ordered(s):
     return int(s is not None and s["min"] <= s["p50"] <= s["p99"] <= s["p999"] <= s["max"])
@@ -53,12 +56,31 @@ j = d["jitter_floor_us"]
 print("jitter_ok", int(j is not None and j["samples"] > 0 and j["max"] >= 0))
 print("e2e_returned", d["e2e_frames"]["returned"])
 print("e2e_samples", len(d["samples"]["e2e_us"]))
+lcm = d["lcm_overhead_us"]
+print("lcm_n", 0 if lcm is None else lcm["n"])
+print("lcm_samples", len(d["samples"]["lcm_overhead_us"]))
+print("lcm_ordered", int(lcm is not None and 0 <= lcm["min"] <= lcm["p50"] <= lcm["p99"] <= lcm["max"]))
+# Per frame, from the helpers' own files: e2e_K.txt (latency us, utime) and steps_K.txt (utime, ns).
+work, lats, expect = sys.argv[2], [], []
+for k in range(int(sys.argv[3])):
+    e2e = os.path.join(work, f"e2e_{k}.txt")
+    if not os.path.exists(e2e):
+        continue
+    steps = dict(tuple(map(int, l.split())) for l in open(os.path.join(work, f"steps_{k}.txt")))
+    for line in open(e2e):
+        lat, utime = map(int, line.split())
+        lats.append(lat)
+        expect.append(lat - steps[utime] / 1000.0)
+got = d["samples"]["lcm_overhead_us"]
+same = len(got) == len(expect) > 0
+print("lcm_per_frame", int(same and all(abs(a - b) < 0.01 for a, b in zip(got, expect))))
+print("lcm_below_e2e", int(same and all(a < b for a, b in zip(got, lats))))
 PY
 }
 
 frames=$(value <("$INSPECT" "$LOG") channel.VISLAM_FEATURES)
 expected=$((frames * PASSES))
-args=("$LOG" --rate max --passes "$PASSES" --json "$OUT/l.json" --quiet)
+args=("$LOG" --rate max --passes "$PASSES" --json "$OUT/l.json" --work-dir "$OUT/work" --quiet)
 if [ "$MODE" = e2e ]; then
   args+=(--lcm-url "$URL")
 else
@@ -69,7 +91,7 @@ rc=0
 "$BIN/vislam-latency" "${args[@]}" 2>"$OUT/stderr" || rc=$?
 cat "$OUT/stderr"
 check "exit status 0" eq "$rc" 0
-facts "$OUT/l.json" >"$OUT/facts" || echo "FAIL: the JSON does not parse"
+facts "$OUT/l.json" "$OUT/work" >"$OUT/facts" || echo "FAIL: the JSON does not parse"
 check "every key of the JSON" eq "$(value "$OUT/facts" keys_ok)" 1
 check "steps = $frames frames x $PASSES passes" eq "$(value "$OUT/facts" steps)" "$expected"
 check "window = the default 128" eq "$(value "$OUT/facts" window)" 128
@@ -81,8 +103,14 @@ if [ "$MODE" = e2e ]; then
   check "end to end: every pose came back" eq "$(value "$OUT/facts" e2e_returned)" "$expected"
   check "end to end: one sample per step" eq "$(value "$OUT/facts" e2e_samples)" "$expected"
   check "end-to-end percentiles ordered" eq "$(value "$OUT/facts" e2e_ordered)" 1
+  check "LCM overhead: one sample per frame" eq "$(value "$OUT/facts" lcm_n)/$(value "$OUT/facts" lcm_samples)" \
+    "$expected/$expected"
+  check "LCM overhead: 0 <= min <= p50 <= p99 <= max" eq "$(value "$OUT/facts" lcm_ordered)" 1
+  check "LCM overhead per frame = end to end - vislamd's step (its utime)" eq "$(value "$OUT/facts" lcm_per_frame)" 1
+  check "LCM overhead below the end-to-end latency, every frame" eq "$(value "$OUT/facts" lcm_below_e2e)" 1
 else
   check "no end-to-end figures without vislamd" eq "$(value "$OUT/facts" e2e_samples)" 0
+  check "no LCM overhead without vislamd" eq "$(value "$OUT/facts" lcm_samples)" 0
 fi
 echo "$FAILS check(s) failed"
 exit "$FAILS"

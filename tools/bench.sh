@@ -829,6 +829,7 @@ section_latency() {
   done
   say "Step: vl_update through vl_session in vislam-latency's own process, pinned to CPU 1; end to end:"
   say "vislamd (CPU 1) and vislam-replay --lockstep (CPU 0) over LCM, frame published to pose received;"
+  say "LCM overhead: per frame, end to end less vislamd's own step for it (vislamd --step-samples);"
   say "jitter floor: how late a 1 kHz clock_nanosleep probe on each CPU woke during the same run;"
   say "work: the core's own count (vl_get_work); budget: the log's frame period. Figures per run in"
   say "$d/*.json, CDFs in $d/*.png."

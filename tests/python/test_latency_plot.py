@@ -26,6 +26,7 @@ def test_plot_writes_a_png(tmp_path):
         "samples": {
             "step_us": sorted(rng.uniform(100, 2000, 100).tolist()),
             "e2e_us": sorted(rng.uniform(200, 3000, 100).tolist()),
+            "lcm_overhead_us": rng.uniform(50, 300, 100).tolist(),
             "jitter_hist_us": [[60, 900], [120, 90], [2000, 10]],
         },
     }

@@ -8,7 +8,9 @@
  *    (vl_get_work: flops per stage, counted from the dimensions it used).
  * 2. End to end: vislamd (beside this program) as a child on the estimator's
  *    CPU, fed by vislam-replay --lockstep pinned to another CPU, over LCM: input
- *    published to pose received, per frame. A new daemon each pass.
+ *    published to pose received, per frame. A new daemon each pass. The LCM
+ *    overhead of a frame is that minus vislamd's own time for its step
+ *    (vislamd --step-samples), the two paired by the frame's utime.
  * 3. The jitter floor: a probe thread per CPU (vl_jitter) wakes at 1 kHz during
  *    both and records how late it wakes: what the machine alone costs.
  * Optional: a busy-loop and memory-churn child on the other CPU (--load),
@@ -94,8 +96,9 @@ static void usage(FILE *f)
 {
     fprintf(f, "usage: vislam-latency LOG [options]\n"
                "Measures vislam's step latency on this machine: in-process (the core through vl_session) and\n"
-               "end to end through vislamd over LCM, beside the machine's own scheduling-jitter floor and\n"
-               "the core's own count of each step's work.\n"
+               "end to end through vislamd over LCM (and the LCM overhead: end to end less vislamd's own\n"
+               "step, per frame), beside the machine's own scheduling-jitter floor and the core's own count\n"
+               "of each step's work.\n"
                "\n"
                "  --passes N          run the log N times, a fresh estimator (and daemon) each pass (default 1)\n"
                "  --rate sensor|max   feed inputs at their recorded times (default) or as fast as possible\n"
@@ -116,7 +119,8 @@ static void usage(FILE *f)
                "                      -DVL_NATIVE=OFF where the CPU has AVX-512)\n"
                "  --no-probe          no jitter probe\n"
                "  --json FILE         the figures as JSON (with the samples the plot draws)\n"
-               "  --plot FILE.png     CDFs of the step and end-to-end latency with the jitter floor\n"
+               "  --plot FILE.png     CDFs of the step and end-to-end latency and the LCM overhead with the\n"
+               "                      jitter floor\n"
                "                      (Python: $VISLAM_PYTHON, else the project's .venv, else python3;\n"
                "                      vislam_tools from $VISLAM_TOOLS_DIR, else the source tree's tools/)\n"
                "  --work-dir DIR      where the end-to-end pass keeps vislamd's and the replay's outputs\n"
@@ -399,13 +403,6 @@ static int load_log(const char *path, log_t *lg)
 
 /* ---- the in-process pass ---- */
 
-static int64_t now_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
-
 static int build_config(vl_config_t *cfg, vl_config_file_info_t *info)
 {
     vl_config_default(cfg);
@@ -463,9 +460,9 @@ static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double
                 while (vl_clock_sleep_until_us(deadline) != 0) {
                 }
             }
-            const int64_t t0 = now_ns();
+            const int64_t t0 = vl_clock_monotonic_ns();
             const vl_session_step_t step = vl_session_input(&session, ev, NULL);
-            const int64_t t1 = now_ns();
+            const int64_t t1 = vl_clock_monotonic_ns();
             if (step == VL_SESSION_STEP_UPDATE) {
                 step_t *s = &steps[(*nsteps)++];
                 s->ns = t1 - t0;
@@ -599,32 +596,96 @@ static long long json_int(const char *path, const char *key)
 /* ---- the end-to-end pass ---- */
 
 typedef struct {
-    double *us;
-    size_t n, cap;
+    double *us;          /* per frame answered, in order: frame published to pose received, us */
+    int64_t *utime;      /* its frame's utime, us */
+    double *overhead_us; /* us minus vislamd's step for the same frame (LCM's share), in order */
+    size_t n, n_overhead, cap;
     long long expected, returned;
-    int failed; /* a helper failed */
+    long long unpaired; /* frames answered that vislamd's step samples do not hold */
+    int failed;         /* a helper failed */
 } e2e_t;
 
+/* Room for one more frame in every array of e; -1 when out of memory. */
+static int e2e_reserve(e2e_t *e)
+{
+    if (e->n < e->cap) {
+        return 0;
+    }
+    const size_t cap = e->cap ? 2 * e->cap : 4096;
+    double *us = (double *)realloc(e->us, cap * sizeof(double));
+    e->us = us != NULL ? us : e->us;
+    int64_t *ut = (int64_t *)realloc(e->utime, cap * sizeof(int64_t));
+    e->utime = ut != NULL ? ut : e->utime;
+    double *ov = (double *)realloc(e->overhead_us, cap * sizeof(double));
+    e->overhead_us = ov != NULL ? ov : e->overhead_us;
+    if (us == NULL || ut == NULL || ov == NULL) {
+        return -1;
+    }
+    e->cap = cap;
+    return 0;
+}
+
+/* Appends the replay's --latency-samples (a line per frame: latency us, utime us). */
 static int read_samples(const char *path, e2e_t *e)
 {
     FILE *f = fopen(path, "r");
     if (f == NULL) {
         return -1;
     }
-    long long v;
-    while (fscanf(f, "%lld", &v) == 1) {
-        if (e->n == e->cap) {
-            e->cap = e->cap ? 2 * e->cap : 4096;
-            double *p = (double *)realloc(e->us, e->cap * sizeof(double));
-            if (p == NULL) {
-                break;
-            }
-            e->us = p;
-        }
-        e->us[e->n++] = (double)v;
+    long long v, utime;
+    while (fscanf(f, "%lld %lld", &v, &utime) == 2 && e2e_reserve(e) == 0) {
+        e->us[e->n] = (double)v;
+        e->utime[e->n] = (int64_t)utime;
+        e->n++;
     }
     fclose(f);
     return 0;
+}
+
+/*
+ * Pairs the frames e[from..n) with vislamd's --step-samples (a line per frame it stepped, in its
+ * order: utime us, step ns) by utime, in order (a utime repeated by a new timeline pairs with the
+ * next step of that utime), and appends each frame's end to end minus step to e->overhead_us.
+ */
+static void pair_steps(const char *path, e2e_t *e, size_t from)
+{
+    size_t m = 0, cap = 0;
+    int64_t *utime = NULL, *ns = NULL;
+    FILE *f = fopen(path, "r");
+    long long u, t;
+    while (f != NULL && fscanf(f, "%lld %lld", &u, &t) == 2) {
+        if (m == cap) {
+            cap = cap ? 2 * cap : 4096;
+            int64_t *pu = (int64_t *)realloc(utime, cap * sizeof(int64_t));
+            utime = pu != NULL ? pu : utime;
+            int64_t *pn = (int64_t *)realloc(ns, cap * sizeof(int64_t));
+            ns = pn != NULL ? pn : ns;
+            if (pu == NULL || pn == NULL) {
+                break;
+            }
+        }
+        utime[m] = (int64_t)u;
+        ns[m] = (int64_t)t;
+        m++;
+    }
+    if (f != NULL) {
+        fclose(f);
+    }
+    size_t next = 0;
+    for (size_t i = from; i < e->n; ++i) {
+        size_t k = next;
+        while (k < m && utime[k] != e->utime[i]) {
+            ++k;
+        }
+        if (k == m) {
+            e->unpaired++;
+            continue;
+        }
+        e->overhead_us[e->n_overhead++] = e->us[i] - (double)ns[k] * 1e-3;
+        next = k + 1;
+    }
+    free(utime);
+    free(ns);
 }
 
 static void run_e2e(const char *dir, e2e_t *e)
@@ -642,7 +703,7 @@ static void run_e2e(const char *dir, e2e_t *e)
     snprintf(prio, sizeof(prio), "%d", opt.rt_priority);
     snprintf(timeout, sizeof(timeout), "%ld", opt.timeout_ms);
     for (int pass = 0; pass < opt.passes; ++pass) {
-        char traj[PATH_LEN], dlog[PATH_LEN], rlog[PATH_LEN], json[PATH_LEN], samples[PATH_LEN];
+        char traj[PATH_LEN], dlog[PATH_LEN], rlog[PATH_LEN], json[PATH_LEN], samples[PATH_LEN], steps[PATH_LEN];
         char name[64];
         snprintf(name, sizeof(name), "vislamd_%d.tum", pass);
         path_join(traj, sizeof(traj), dir, name);
@@ -654,6 +715,8 @@ static void run_e2e(const char *dir, e2e_t *e)
         path_join(json, sizeof(json), dir, name);
         snprintf(name, sizeof(name), "e2e_%d.txt", pass);
         path_join(samples, sizeof(samples), dir, name);
+        snprintf(name, sizeof(name), "steps_%d.txt", pass);
+        path_join(steps, sizeof(steps), dir, name);
         unlink(traj); /* vislamd appends */
         const char *dargv[16];
         int k = 0;
@@ -662,6 +725,8 @@ static void run_e2e(const char *dir, e2e_t *e)
         dargv[k++] = traj;
         dargv[k++] = "--cpu";
         dargv[k++] = cpu;
+        dargv[k++] = "--step-samples";
+        dargv[k++] = steps;
         if (opt.rt_priority > 0) {
             dargv[k++] = "--rt-priority";
             dargv[k++] = prio;
@@ -718,7 +783,9 @@ static void run_e2e(const char *dir, e2e_t *e)
         if (expected > 0 && returned > 0) {
             e->expected += expected;
             e->returned += returned;
+            const size_t from = e->n;
             read_samples(samples, e);
+            pair_steps(steps, e, from);
             continue;
         }
         fprintf(stderr,
@@ -863,7 +930,7 @@ static int run_plot(const char *json, const char *png)
 /* ---- output ---- */
 
 typedef struct {
-    summary_t step, prop, e2e, jitter_cpu[VL_JITTER_MAX_CPUS];
+    summary_t step, prop, e2e, lcm, jitter_cpu[VL_JITTER_MAX_CPUS];
     double jitter_max, jitter_p99;
     int jitter_cpus;
     uint64_t jitter_samples;
@@ -925,7 +992,9 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
     json_summary(f, "step_us", &res->step, ",");
     json_summary(f, "propagate_us", &res->prop, ",");
     json_summary(f, "e2e_us", opt.e2e ? &res->e2e : NULL, ",");
-    fprintf(f, "  \"e2e_frames\": {\"expected\": %lld, \"returned\": %lld},\n", e->expected, e->returned);
+    json_summary(f, "lcm_overhead_us", opt.e2e ? &res->lcm : NULL, ",");
+    fprintf(f, "  \"e2e_frames\": {\"expected\": %lld, \"returned\": %lld, \"paired\": %zu},\n", e->expected,
+            e->returned, e->n_overhead);
     fprintf(f, "  \"jitter_floor_us\": ");
     if (res->jitter_samples == 0) {
         fprintf(f, "null,\n");
@@ -957,10 +1026,12 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
     } else {
         fprintf(f, "null,\n");
     }
-    /* The samples the plot draws: sorted step and end-to-end times, and the jitter histogram. */
+    /* The samples the plot draws: sorted step and end-to-end times, the LCM overhead per frame in
+       frame order (pass after pass), and the jitter histogram. */
     fprintf(f, "  \"samples\": {\n");
     json_array(f, "step_us", step_sorted, nsteps, ",");
     json_array(f, "e2e_us", e->us, opt.e2e ? e->n : 0, ",");
+    json_array(f, "lcm_overhead_us", e->overhead_us, opt.e2e ? e->n_overhead : 0, ",");
     fprintf(f, "    \"jitter_hist_us\": [");
     int first = 1;
     for (size_t b = 0; b < VL_LATENCY_BUCKETS; ++b) {
@@ -1143,6 +1214,12 @@ int main(int argc, char **argv)
         res.e2e_overruns += e2e.us[i] > (double)res.budget_us;
     }
     res.e2e = summarize(e2e.us, e2e.n);
+    double *lcm_sorted = (double *)malloc((e2e.n_overhead > 0 ? e2e.n_overhead : 1) * sizeof(double));
+    if (lcm_sorted != NULL && e2e.n_overhead > 0) {
+        memcpy(lcm_sorted, e2e.overhead_us, e2e.n_overhead * sizeof(double));
+        res.lcm = summarize(lcm_sorted, e2e.n_overhead);
+    }
+    free(lcm_sorted);
     const summary_t w = summarize(work, nsteps);
     res.work_p50 = w.p50;
     res.work_max = w.max;
@@ -1166,7 +1243,14 @@ int main(int argc, char **argv)
         if (e2e.n > 0) {
             print_summary("end to end (vislamd, LCM)", &res.e2e);
         }
+        if (res.lcm.n > 0) {
+            print_summary("LCM overhead (e2e - its step)", &res.lcm);
+        }
         fprintf(stderr, "  end to end: %lld of %lld poses came back\n", e2e.returned, e2e.expected);
+        if (e2e.unpaired > 0) {
+            fprintf(stderr, "  end to end: %lld frame(s) answered without a step in vislamd's samples: no overhead\n",
+                    e2e.unpaired);
+        }
     }
     if (res.jitter_samples > 0) {
         fprintf(stderr, "  jitter floor (1 kHz probe, %d CPUs, %" PRIu64 " wake-ups): p99 %.0f  max %.0f us\n",
@@ -1218,6 +1302,8 @@ int main(int argc, char **argv)
     free(step_us);
     free(work);
     free(e2e.us);
+    free(e2e.utime);
+    free(e2e.overhead_us);
     free(lg.events);
     return rc;
 }

@@ -130,7 +130,7 @@ typedef struct {
     int matched;
     uint64_t expected, returned, missing;
     vl_latency_t latency;
-    FILE *samples; /* --latency-samples: one end-to-end latency per line */
+    FILE *samples; /* --latency-samples: per frame, its end-to-end latency (us) and utime (us) */
     vislam_pose_t pose_msg;
     /* inputs decoded with the receivers' checks (vl_log_event_decode), for their utime */
     vl_log_decoder_t decoder;
@@ -175,7 +175,8 @@ static void usage(FILE *f)
             "                        restart, whose sequence numbers start again (default " VL_CHANNEL_STATUS ")\n"
             "  --lcm-url URL         LCM provider (default: $LCM_DEFAULT_URL, else LCM's default)\n"
             "  --summary-json FILE   also write the summary as JSON\n"
-            "  --latency-samples FILE  lockstep: each frame's end-to-end latency, us, one per line\n"
+            "  --latency-samples FILE  lockstep: a line per frame answered: its end-to-end latency (us),\n"
+            "                        then its utime (us)\n"
             "  --quiet               no progress line and no summary on stderr\n"
             "  --version             print the version and exit\n"
             "  --help                this text\n"
@@ -490,7 +491,7 @@ static void on_pose(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
         r->matched = 1;
         vl_latency_record(&r->latency, now - r->publish_mono_us);
         if (r->samples != NULL) {
-            fprintf(r->samples, "%" PRId64 "\n", now - r->publish_mono_us);
+            fprintf(r->samples, "%" PRId64 " %" PRId64 "\n", now - r->publish_mono_us, m->utime);
         }
     }
 }

@@ -288,21 +288,24 @@ def cmd_daemon(args):
 
 
 def cmd_latency(args):
-    """One row per vislam-latency --json run: step and end-to-end percentiles beside the jitter floor."""
+    """One row per vislam-latency --json run: step, end-to-end and LCM-overhead percentiles beside the
+    jitter floor."""
     header = ["run", "steps", "step min / p50 / p99 / p99.9 / max (us)", "end to end p50 / p99 / p99.9 / max (us)",
-              "poses back", "jitter floor p99 / max (us)", "overruns", "work p50 / max (Mflop)",
+              "LCM overhead p50 / p99 / max (us)", "poses back", "jitter floor p99 / max (us)", "overruns", "work p50 / max (Mflop)",
               "costliest step: x median time / x median work"]
     rows = []
     for label, path in _rows(args.rows):
         d = _load_json(path) or {}
         st, e2e, jit, w = d.get("step_us") or {}, d.get("e2e_us") or {}, d.get("jitter_floor_us") or {}, \
             d.get("work") or {}
+        lcm = d.get("lcm_overhead_us") or {}
         c = d.get("costliest_step") or {}
         frames = d.get("e2e_frames") or {}
         mflop = [None if w.get(k) is None else w[k] / 1e6 for k in ("p50", "max")]
         rows.append([label, _fmt(d.get("steps")),
                      " / ".join(_fmt(st.get(k), 0) for k in ("min", "p50", "p99", "p999", "max")),
                      " / ".join(_fmt(e2e.get(k), 0) for k in ("p50", "p99", "p999", "max")),
+                     " / ".join(_fmt(lcm.get(k), 0) for k in ("p50", "p99", "max")),
                      f"{_fmt(frames.get('returned'))} of {_fmt(frames.get('expected'))}",
                      " / ".join(_fmt(jit.get(k), 0) for k in ("p99", "max")),
                      _fmt(d.get("overruns")), " / ".join(_fmt(m, 1) for m in mflop),

@@ -1,10 +1,12 @@
-"""The latency figure of vislam-latency: CDFs of the in-process step time and of the end-to-end
-latency through vislamd, beside the machine's own jitter floor measured in the same run.
+"""The latency figure of vislam-latency: CDFs of the in-process step time, of the end-to-end
+latency through vislamd and of its LCM overhead (end to end less vislamd's own step), beside the
+machine's own jitter floor measured in the same run.
 
     python -m vislam_tools.latency_plot LATENCY.json OUT.png
 
 LATENCY.json is vislam-latency --json's output: its "samples" hold the step and end-to-end
-times (us) and the jitter probe's histogram as [bucket upper edge (us), count] pairs.
+times and the LCM overhead per frame (us), and the jitter probe's histogram as [bucket upper
+edge (us), count] pairs.
 """
 
 import json
@@ -38,6 +40,7 @@ def plot(report, out_path):
     series = [
         ("step (vl_update, in-process)", cdf(samples.get("step_us", [])), "tab:blue"),
         ("end to end (vislamd over LCM)", cdf(samples.get("e2e_us", [])), "tab:red"),
+        ("LCM overhead (end to end - vislamd's step)", cdf(samples.get("lcm_overhead_us", [])), "tab:green"),
         ("jitter floor (1 kHz probe wake-up lateness)", histogram_cdf(samples.get("jitter_hist_us", [])), "0.4"),
     ]
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))

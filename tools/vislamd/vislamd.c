@@ -11,7 +11,8 @@
  * received through lcm_subscribe's raw handler and decoded into static storage
  * (the message types are fixed-size), poses are encoded into static buffers and
  * sent with lcm_publish, and every step is timed with CLOCK_MONOTONIC into
- * fixed-memory histograms. Memory is locked as the last step of start-up.
+ * fixed-memory histograms (and, with --step-samples, into an array allocated at
+ * start-up and written at exit). Memory is locked as the last step of start-up.
  * Whether the loop allocates, LCM included, is measured from outside by a
  * preloaded counter (tests/support/vl_alloc_counter.c); the daemon knows
  * nothing of it.
@@ -71,11 +72,14 @@
 #define DRAIN_MAX 1000     /* messages already queued that are still processed at shutdown */
 #define LCM_ERRORS_MAX 100 /* consecutive lcm_handle failures before giving up */
 #define ENCODE_BUF 1024
+#define STEP_SAMPLES_MAX 65536 /* --step-samples: frames kept (1 MiB; 1.8 h at 10 Hz), later ones counted */
+#define STEP_SAMPLES_BUF 65536 /* its stdio buffer, given at start-up so that writing it does not allocate */
 
 typedef struct {
     const char *config_path;
     const char *lcm_url;
     const char *trajectory_path;
+    const char *step_samples_path;
     const char *prefix;
     const char *channel[6];
     long budget_us;  /* 0: automatic */
@@ -94,6 +98,13 @@ static const char *const channel_option[CH_COUNT] = {"--imu-channel",  "--featur
                                                      "--pose-channel", "--bot-pose-channel", "--status-channel"};
 
 typedef enum { STEP_PROPAGATE = 0, STEP_UPDATE = 1 } step_kind_t;
+
+/* One frame's step for --step-samples: the session step less its output sink, the code
+   vislam-latency's in-process pass times, so that end to end minus this is LCM's share. */
+typedef struct {
+    int64_t utime; /**< the frame's utime, us (the pose's utime) */
+    int64_t ns;    /**< vl_session_input less its publishing (sink_ns), CLOCK_MONOTONIC ns */
+} step_sample_t;
 
 /* The daemon's own counts; the inputs' are the session's (vl_session_counters). */
 typedef struct {
@@ -138,6 +149,12 @@ typedef struct {
     int64_t last_overrun_log_us;
     uint64_t overruns_unlogged;
     uint64_t overruns_at_status; /* "since the last status" for BUDGET_OVERRUN */
+    int64_t sink_ns;             /* time publishing (poses, statuses) during the current step, ns */
+    step_sample_t *step_samples; /* --step-samples: STEP_SAMPLES_MAX, allocated at start-up */
+    size_t num_step_samples;
+    uint64_t step_samples_dropped;
+    FILE *step_samples_file;
+    char *step_samples_buf;
 
     /* systemd: readiness, watchdog, status line (all no-ops when not run as a Type=notify service) */
     vl_notify_t notify;
@@ -169,6 +186,9 @@ static void usage(FILE *f)
             "  --trajectory FILE       TUM trajectory, one line per accepted frame (vislam-run's lines),\n"
             "                          flushed line by line; appended to, never truncated: a restart\n"
             "                          adds a '# ...' comment line and its run after the earlier one\n"
+            "  --step-samples FILE     at exit, one line per frame stepped: its utime (us) and the step's\n"
+            "                          time (ns: vl_session_input less what it publishes); kept in memory\n"
+            "                          for the first %d frames (vislam-latency's LCM overhead)\n"
             "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
             "                          of the last %d IMU intervals; %d us until known)\n"
             "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
@@ -193,7 +213,7 @@ static void usage(FILE *f)
             "\n"
             "Exit status: 0 stopped by SIGINT/SIGTERM with every output flushed, 1 run-time failure\n"
             "(LCM, trajectory file), 2 usage or configuration error.\n",
-            INTERVAL_WINDOW, DEFAULT_BUDGET_US, STACK_PREFAULT_BYTES / 1024);
+            STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US, STACK_PREFAULT_BYTES / 1024);
 }
 
 static int parse_long(const char *opt, const char *s, long lo, long hi, long *out)
@@ -211,8 +231,8 @@ static int parse_long(const char *opt, const char *s, long lo, long hi, long *ou
 
 static int takes_value(const char *a)
 {
-    static const char *const names[] = {"--config",    "--lcm-url",     "--trajectory", "--channel-prefix",
-                                        "--budget-us", "--rt-priority", "--cpu"};
+    static const char *const names[] = {"--config",         "--lcm-url",   "--trajectory",  "--step-samples",
+                                        "--channel-prefix", "--budget-us", "--rt-priority", "--cpu"};
     for (size_t i = 0; i < sizeof(names) / sizeof(names[0]); ++i) {
         if (strcmp(a, names[i]) == 0) {
             return 1;
@@ -268,6 +288,8 @@ static int parse_args(int argc, char **argv, options_t *o)
             o->lcm_url = v;
         } else if (strcmp(a, "--trajectory") == 0) {
             o->trajectory_path = v;
+        } else if (strcmp(a, "--step-samples") == 0) {
+            o->step_samples_path = v;
         } else if (strcmp(a, "--channel-prefix") == 0) {
             o->prefix = v;
         } else if (strcmp(a, "--budget-us") == 0) {
@@ -420,10 +442,9 @@ static void publish_status(daemon_t *d)
     vl_session_mark(&d->session);
 }
 
-/* Session sink: the pose on VISLAM_POSE and POSE, stamped with the input's time; frames also to the TUM file. */
-static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t sequence, const vl_pose_t *pose)
+/* The pose on VISLAM_POSE and POSE, stamped with the input's time; frames also to the TUM file. */
+static void publish_pose(daemon_t *d, vl_session_step_t step, int64_t utime, uint64_t sequence, const vl_pose_t *pose)
 {
-    daemon_t *d = (daemon_t *)user;
     const int8_t source = step == VL_SESSION_STEP_UPDATE ? VISLAM_POSE_T_SOURCE_FEATURES : VISLAM_POSE_T_SOURCE_IMU;
     vl_msg_from_pose(pose, source, (int64_t)sequence, &d->pose_msg);
     d->pose_msg.utime = utime;
@@ -441,6 +462,15 @@ static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t 
     }
 }
 
+/* Session sink: publish_pose, timed so that the step's own time can leave it out. */
+static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t sequence, const vl_pose_t *pose)
+{
+    daemon_t *d = (daemon_t *)user;
+    const int64_t t0 = vl_clock_monotonic_ns();
+    publish_pose(d, step, utime, sequence, pose);
+    d->sink_ns += vl_clock_monotonic_ns() - t0;
+}
+
 /*
  * Session event. A re-initialization is an immediate status with TIMELINE_CHANGE
  * or DIVERGENCE_RESET set, so a listener need not wait for the periodic one;
@@ -452,7 +482,9 @@ static void on_event(void *user, vl_session_event_t event, int64_t utime)
     (void)utime;
     if (event == VL_SESSION_EVENT_REINITIALIZED) {
         d->have_prev_imu = 0;
+        const int64_t t0 = vl_clock_monotonic_ns();
         publish_status(d);
+        d->sink_ns += vl_clock_monotonic_ns() - t0; /* an output, not the step (see on_pose) */
     } else if (event == VL_SESSION_EVENT_CALIBRATED && !d->opt.quiet) {
         fprintf(stderr, "vislamd: calibration received; estimating\n");
     }
@@ -517,6 +549,17 @@ static void feed_watchdog(daemon_t *d, int64_t now, int healthy)
 
 /* ---- LCM handlers: decode (vl_log_event_decode), then one session step, timed ---- */
 
+static void keep_step_sample(daemon_t *d, int64_t utime, int64_t ns)
+{
+    if (d->num_step_samples == STEP_SAMPLES_MAX) {
+        d->step_samples_dropped++;
+        return;
+    }
+    d->step_samples[d->num_step_samples].utime = utime;
+    d->step_samples[d->num_step_samples].ns = ns;
+    d->num_step_samples++;
+}
+
 static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_buf_t *rbuf, const char *channel)
 {
     const int64_t t0 = vl_clock_monotonic_us();
@@ -527,11 +570,17 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
     ev->log_utime = rbuf->recv_utime;
     vl_log_event_decode(&d->decoder, kind, rbuf->data, (int)rbuf->data_size, ev);
     vl_status_t status = VL_OK;
+    d->sink_ns = 0;
+    const int64_t s0 = vl_clock_monotonic_ns();
     const vl_session_step_t step = vl_session_input(&d->session, ev, &status);
+    const int64_t step_ns = vl_clock_monotonic_ns() - s0 - d->sink_ns;
     if (step == VL_SESSION_STEP_NONE) {
         return;
     }
     const int64_t utime = step == VL_SESSION_STEP_UPDATE ? ev->frame.utime : ev->imu.utime;
+    if (step == VL_SESSION_STEP_UPDATE && d->step_samples != NULL) {
+        keep_step_sample(d, utime, step_ns);
+    }
     if (step == VL_SESSION_STEP_PROPAGATE && status >= 0) {
         note_imu_interval(d, utime);
     }
@@ -661,6 +710,44 @@ static int warm_up(daemon_t *d)
     return 0;
 }
 
+/* --step-samples at start-up: the file opened (an unwritable path fails now, not at exit), its
+   stdio buffer and the samples allocated, so that neither the loop nor the final write allocates. */
+static int open_step_samples(daemon_t *d)
+{
+    d->step_samples = (step_sample_t *)calloc(STEP_SAMPLES_MAX, sizeof(step_sample_t));
+    d->step_samples_buf = (char *)malloc(STEP_SAMPLES_BUF);
+    d->step_samples_file = fopen(d->opt.step_samples_path, "w");
+    if (d->step_samples == NULL || d->step_samples_buf == NULL || d->step_samples_file == NULL ||
+        setvbuf(d->step_samples_file, d->step_samples_buf, _IOFBF, STEP_SAMPLES_BUF) != 0) {
+        fprintf(stderr, "vislamd: cannot write %s: %s\n", d->opt.step_samples_path, strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+/* At exit: the kept samples, "utime ns" a line; 0, or -1 on a write error. */
+static int write_step_samples(daemon_t *d)
+{
+    FILE *f = d->step_samples_file;
+    for (size_t i = 0; i < d->num_step_samples; ++i) {
+        fprintf(f, "%" PRId64 " %" PRId64 "\n", d->step_samples[i].utime, d->step_samples[i].ns);
+    }
+    if (d->step_samples_dropped > 0) {
+        fprintf(stderr, "vislamd: %s: the first %d frames kept, %" PRIu64 " later ones not\n", d->opt.step_samples_path,
+                STEP_SAMPLES_MAX, d->step_samples_dropped);
+    }
+    const int bad = ferror(f);
+    const int closed = fclose(f);
+    d->step_samples_file = NULL;
+    free(d->step_samples_buf);
+    free(d->step_samples);
+    if (closed != 0 || bad) {
+        fprintf(stderr, "vislamd: error: write error on %s\n", d->opt.step_samples_path);
+        return -1;
+    }
+    return 0;
+}
+
 static void print_summary(const daemon_t *d)
 {
     const vl_session_t *ss = &d->session;
@@ -764,6 +851,9 @@ int main(int argc, char **argv)
         }
         d->have_trajectory = 1;
     }
+    if (d->opt.step_samples_path != NULL && open_step_samples(d) != 0) {
+        return EXIT_RUNTIME;
+    }
     if (warm_up(d) != 0) {
         return EXIT_RUNTIME;
     }
@@ -857,6 +947,9 @@ int main(int argc, char **argv)
     if (!d->opt.quiet) {
         print_status_line(d);
         print_summary(d);
+    }
+    if (d->step_samples_file != NULL && write_step_samples(d) != 0) {
+        exit_code = EXIT_RUNTIME;
     }
     if (d->have_trajectory && vl_trajectory_close(&d->trajectory) != 0) {
         fprintf(stderr, "vislamd: error: the trajectory %s is incomplete (write error)\n", d->opt.trajectory_path);
