@@ -82,10 +82,9 @@ typedef enum {
       "Most observations one update uses (0: all). A time bound: the update costs about " \
       "(12 + 3 landmarks)^2 x 3 observations; the inliers left out (evenly spread) stay in the " \
       "window for later frames.") \
-    /* Off by default: at 40 Mflop (0027 unchanged, the costliest update of 0034 down 16%) the \
-       rows it defers enter the pixel noise adaptation's post-fit median unfitted, and on a dense \
-       simulated drive with the pixel noise set 10x too low that estimate overshoots (README). */ \
-    X("estimator", "max_update_work", max_update_work, DOUBLE, 0.0, 0.0, DBL_MAX, 0, "Mflop", \
+    /* 40 Mflop: the costliest update of 0034 down 16%, 0027 within 0.05 m (README, Bounded work \
+       per step); the pixel noise adaptation leaves the deferred rows out. */ \
+    X("estimator", "max_update_work", max_update_work, DOUBLE, 40.0, 0.0, DBL_MAX, 0, "Mflop", \
       "Most arithmetic one frame's joint updates may do, in millions of floating-point " \
       "operations (0: no bound). The update with n states and m rows costs about " \
       "n^2 m + n m^2 + m^3 / 3 flops, so the bound admits fewer observations the larger the " \
