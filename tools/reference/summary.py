@@ -7,24 +7,10 @@
 Rows are tab-separated; a missing or unreadable file gives "n/a" in its cells.
 """
 
-import json
 import sys
 
-
-def _load(path):
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except (OSError, ValueError):
-        return None
-
-
-def _get(d, *keys):
-    for k in keys:
-        if not isinstance(d, dict) or k not in d:
-            return None
-        d = d[k]
-    return d
+from vislam_tools.bench_report import dig as _get
+from vislam_tools.bench_report import load_json as _load
 
 
 def _fmt(x, spec):

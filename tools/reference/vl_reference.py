@@ -214,6 +214,21 @@ def compress(o):
     return np.array([o[1], 0.5 * (o[2] + o[4]), o[3]])
 
 
+def joint_update_flops(n, k):
+    """vl_work_joint_update: the flops of one joint update with n states and k observations."""
+    if k == 0:
+        return 0
+    m = 3 * k
+    pht = 2 * n * 9 * m
+    s_rows = 2 * 9 * 3 * (m * k - 3 * k * (k - 1) // 2)
+    chol = m * m * m // 3 + m * m
+    whiten = m * m + n * m * (m + 1)
+    dx = 2 * n * m
+    downdate = n * (n + 1) * m
+    correct = 1000 + 39 * ((n - CORE_DIM) // 3)
+    return pht + s_rows + chol + whiten + dx + downdate + correct
+
+
 def stereo_noise(pixel_var):
     """Noise variances of the compressed observation: diag(s^2, s^2 / 2, s^2)."""
     return pixel_var * STEREO_SHARE
@@ -622,7 +637,7 @@ class Filter:
                 inlier[m], inlier[i] = inlier[i], inlier[m]
                 m += 1
         partitioned, rest = m, k - m
-        cap = int(cfg["max_update_observations"])
+        cap = self.rows_cap()
         used = partitioned
         if cap > 0 and partitioned > cap:  # the time bound: an evenly spread subset
             for i in range(cap):
@@ -632,7 +647,7 @@ class Filter:
         prior_diag = np.diag(self.P)[:6].copy()
         ok = self.apply(rows[:used])
         if ok and used > 0 and cfg["adaptive_noise"]:
-            self.adapt_pixel_noise(rows)
+            self.adapt_pixel_noise(rows[:used], rows[partitioned:])
             self.adapt_velocity_noise(prior_diag)
         if not ok or rest == 0:
             return ok
@@ -649,6 +664,19 @@ class Filter:
         if cap > 0 and used + len(rescued) > cap:
             rescued = rescued[:cap - used]
         return self.apply(rescued)
+
+    def rows_cap(self):
+        """The most observations one update may use (0: all): max_update_observations, and under
+        max_update_work the largest count whose update (joint_update_flops) fits the budget, at
+        least one."""
+        cap = int(self.cfg["max_update_observations"])
+        if self.cfg["max_update_work"] > 0.0:
+            n, budget, k = CORE_DIM + 3 * len(self.slots), self.cfg["max_update_work"] * 1e6, 1
+            while k < MAX_FRAME_FEATURES and joint_update_flops(n, k + 1) <= budget:
+                k += 1
+            if cap == 0 or k < cap:
+                cap = k
+        return cap
 
     def ransac(self, rows, inlier):
         """1-point RANSAC: each hypothesis is the correction one observation alone would give,
@@ -709,21 +737,23 @@ class Filter:
         self.counters["observations_used"] += len(rows)
         return True
 
-    def adapt_pixel_noise(self, rows):
-        """Residual-based covariance matching: after the update, a row's post-fit residual e has
-        E[e^2] = R_rr - (H P+ H^T)_rr, so (e^2 + (H P+ H^T)_rr) / share is a sample of the pixel
-        variance; the median over every row of the frame (outliers included), / 0.455, enters an
-        average that forgets faster the more rows the frame has."""
+    def adapt_pixel_noise(self, used, rejected):
+        """Residual-based covariance matching: after the update, a used row's post-fit residual e
+        has E[e^2] = R_rr - (H P+ H^T)_rr, a rejected row's E[e^2] = R_rr + (H P+ H^T)_rr, so
+        (e^2 +- (H P+ H^T)_rr) / share is a sample of the pixel variance; the median over the used
+        and the rejected rows (the deferred ones left out), / 0.455, enters an average that forgets
+        faster the more rows there are."""
         samples = []
-        for r in rows:
-            S = self.innovation_cov(r)
-            c = CORE_DIM + 3 * r.slot
-            e = r.residual - r.H_pose @ self.dx[:6] - r.H_landmark @ self.dx[c:c + 3]
-            samples.extend((e * e + np.diag(S) - r.noise) / STEREO_SHARE)
+        for rows, fitted in ((used, 1.0), (rejected, -1.0)):
+            for r in rows:
+                S = self.innovation_cov(r)
+                c = CORE_DIM + 3 * r.slot
+                e = r.residual - r.H_pose @ self.dx[:6] - r.H_landmark @ self.dx[c:c + 3]
+                samples.extend((e * e + fitted * (np.diag(S) - r.noise)) / STEREO_SHARE)
         if len(samples) < 3:
             return
         sample = np.partition(np.array(samples), len(samples) // 2)[len(samples) // 2] / CHI2_1_MEDIAN
-        w = 1.0 - math.exp(-len(rows) / PIXEL_NOISE_MEMORY)
+        w = 1.0 - math.exp(-(len(samples) // 3) / PIXEL_NOISE_MEMORY)
         self.var_px = _clamp_var((1.0 - w) * self.var_px + w * sample, self.cfg["pixel"])
 
     def adapt_velocity_noise(self, prior_diag):

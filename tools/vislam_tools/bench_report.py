@@ -26,7 +26,8 @@ import re
 import sys
 
 
-def _load_json(path):
+def load_json(path):
+    """The JSON in path, or None when it cannot be read."""
     try:
         with open(path) as f:
             return json.load(f)
@@ -52,7 +53,8 @@ def _fmt(x, digits=3):
     return f"{x:.{digits}f}"
 
 
-def _get(d, *keys):
+def dig(d, *keys):
+    """d[k1][k2]..., or None where a key is missing."""
     for k in keys:
         if not isinstance(d, dict) or k not in d:
             return None
@@ -67,7 +69,7 @@ def _table(header, rows):
 
 
 def _rpe(ate, delta):
-    for r in _get(ate, "rpe") or []:
+    for r in dig(ate, "rpe") or []:
         if r.get("delta") == delta:
             return f"{_fmt(r.get('trans_rmse'))} / {_fmt(r.get('rot_rmse_deg'), 2)}"
     return "n/a"
@@ -80,11 +82,11 @@ def cmd_ate(args):
     rows = []
     for r in _rows(args.rows):
         label, data, settings, ate_path = r[:4]
-        ate = _load_json(ate_path)
-        stats = _load_json(r[4]) if len(r) > 4 and r[4] else None
-        c = _get(stats, "core_counters") or {}
+        ate = load_json(ate_path)
+        stats = load_json(r[4]) if len(r) > 4 and r[4] else None
+        c = dig(stats, "core_counters") or {}
         rows.append([label, data, settings,
-                     _fmt(_get(ate, "ate", "rmse")), _fmt(_get(ate, "ate", "max")),
+                     _fmt(dig(ate, "ate", "rmse")), _fmt(dig(ate, "ate", "max")),
                      _rpe(ate, 1), _rpe(ate, 10),
                      _fmt(c.get("observations_used")), _fmt(c.get("observations_gated")),
                      _fmt(c.get("frames_reassociated")), _fmt(c.get("numerical_failures"))])
@@ -92,7 +94,7 @@ def cmd_ate(args):
 
 
 def _timing(stats, fn):
-    t = _get(stats, "timing", fn) or {}
+    t = dig(stats, "timing", fn) or {}
     return [_fmt(t.get(k), 1) for k in ("median_us", "p99_us", "p999_us", "max_us")]
 
 
@@ -102,17 +104,17 @@ def cmd_window(args):
               "landmarks deferred / evicted 0034", "obs. deferred 0027 / 0034", "window peak 0034"]
     rows = []
     for n, ate_path, s27_path, s34_path in _rows(args.rows):
-        ate, s27, s34 = _load_json(ate_path), _load_json(s27_path), _load_json(s34_path)
+        ate, s27, s34 = load_json(ate_path), load_json(s27_path), load_json(s34_path)
 
         def de(s):
-            c = _get(s, "core_counters") or {}
+            c = dig(s, "core_counters") or {}
             return f"{_fmt(c.get('landmarks_deferred'))} / {_fmt(c.get('landmarks_evicted'))}"
 
-        rows.append([n, _fmt(_get(ate, "ate", "rmse")), " / ".join(_timing(s34, "vl_update")),
+        rows.append([n, _fmt(dig(ate, "ate", "rmse")), " / ".join(_timing(s34, "vl_update")),
                      _timing(s34, "vl_propagate")[0], de(s27), de(s34),
-                     f"{_fmt(_get(s27, 'core_counters', 'observations_deferred'))} / "
-                     f"{_fmt(_get(s34, 'core_counters', 'observations_deferred'))}",
-                     _fmt(_get(s34, "core_counters", "window_peak"))])
+                     f"{_fmt(dig(s27, 'core_counters', 'observations_deferred'))} / "
+                     f"{_fmt(dig(s34, 'core_counters', 'observations_deferred'))}",
+                     _fmt(dig(s34, "core_counters", "window_peak"))])
     print(_table(header, rows))
 
 
@@ -122,11 +124,11 @@ def cmd_timing(args):
     rows = []
     worst = None
     for label, path in _rows(args.rows):
-        s = _load_json(path)
-        n = _get(s, "timing", "vl_update", "count")
+        s = load_json(path)
+        n = dig(s, "timing", "vl_update", "count")
         rows.append([label, _fmt(n)] + _timing(s, "vl_update") + _timing(s, "vl_propagate"))
         for fn in ("vl_update", "vl_propagate"):
-            m = _get(s, "timing", fn, "max_us")
+            m = dig(s, "timing", fn, "max_us")
             if m is not None and (worst is None or m > worst[0]):
                 worst = (m, fn, label)
     print(_table(header, rows))
@@ -275,7 +277,7 @@ def cmd_daemon(args):
     rows = []
     for label, log, summary in _rows(args.rows):
         d = _daemon_summary(log)
-        r = _load_json(summary) or {}
+        r = load_json(summary) or {}
         a, u = d.get("all", {}), d.get("update", {})
         lat = r.get("latency_us", {})
         rows.append([label, _fmt(d.get("steps")), _fmt(d.get("budget_us")), _fmt(d.get("overruns")),
@@ -295,7 +297,7 @@ def cmd_latency(args):
               "costliest step: x median time / x median work"]
     rows = []
     for label, path in _rows(args.rows):
-        d = _load_json(path) or {}
+        d = load_json(path) or {}
         st, e2e, jit, w = d.get("step_us") or {}, d.get("e2e_us") or {}, d.get("jitter_floor_us") or {}, \
             d.get("work") or {}
         lcm = d.get("lcm_overhead_us") or {}
@@ -319,7 +321,7 @@ def cmd_soak(args):
               "daemon RSS (KiB)", "replay exit"]
     rows, sensor_s, expected, returned, rss = [], 0.0, 0, 0, []
     for loop, log, rss_kb, rc, summary in loops:
-        r = _load_json(summary) or {}
+        r = load_json(summary) or {}
         lat = r.get("latency_us", {})
         sensor_s += r.get("log_s") or 0.0
         expected += r.get("frames_expected") or 0
@@ -344,16 +346,16 @@ def cmd_soak(args):
 def _condition_cells(rows_path):
     cells = []
     for drive, vel, k, truth, summary_path, dr_path, slam_path in _rows(rows_path):
-        summary = _load_json(summary_path)
+        summary = load_json(summary_path)
         cells.append({
             "cell": f"{drive}/{vel}/K{k}",
             "drive": drive,
             "velocities": vel,
             "keep_every": int(k),
             "truth": truth,
-            "obs_per_frame": _get(summary, "observations_per_step"),
-            "dr_ate": _get(_load_json(dr_path), "ate", "rmse"),
-            "vislam_ate": _get(_load_json(slam_path), "ate", "rmse"),
+            "obs_per_frame": dig(summary, "observations_per_step"),
+            "dr_ate": dig(load_json(dr_path), "ate", "rmse"),
+            "vislam_ate": dig(load_json(slam_path), "ate", "rmse"),
         })
     return cells
 
