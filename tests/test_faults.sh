@@ -50,23 +50,7 @@ source "$(dirname "$0")/support/vl_record.sh"
 enter_private_netns "$0" "$@"
 
 # ---- inside the namespace ---------------------------------------------------------------------
-URL='udpm://239.255.76.67:7667?ttl=0'
-OUT=$(mktemp -d /tmp/vislam_test_faults.XXXXXX)
-FAILS=0
-PIDS=()
-
-cleanup() {
-  local p
-  for p in "${PIDS[@]}"; do
-    kill -KILL "$p" 2>/dev/null || true
-  done
-  if [ "$FAILS" -eq 0 ]; then
-    rm -rf "$OUT"
-  else
-    echo "outputs kept in $OUT"
-  fi
-}
-trap cleanup EXIT
+begin_netns_test faults
 
 json() { # json FILE KEY -> the value of "KEY": value in a flat JSON summary
   sed -n -E "s/^ *\"$2\": ([^,]*),?$/\1/p" "$1" | head -n 1

@@ -27,21 +27,7 @@ source "$(dirname "$0")/support/vl_record.sh"
 enter_private_netns "$0" "$@"
 
 # ---- inside the namespace ---------------------------------------------------------------------
-URL='udpm://239.255.76.67:7667?ttl=0'
-OUT=$(mktemp -d /tmp/vislam_test_notify.XXXXXX)
-FAILS=0
-PIDS=()
-cleanup() {
-  for p in "${PIDS[@]}"; do
-    kill "$p" 2>/dev/null
-  done
-  if [ "$FAILS" -eq 0 ]; then
-    rm -rf "$OUT"
-  else
-    echo "outputs kept in $OUT"
-  fi
-}
-trap cleanup EXIT
+begin_netns_test notify
 START=$SECONDS
 WATCHDOG_MS=2000
 

@@ -1,5 +1,6 @@
-# Shared by tests/test_daemon.sh and tests/test_faults.sh (sourced): entering a private network
-# namespace, recording the daemon's outputs and synchronizing on them, and the checks both make. Needs $URL, $OUT, $INSPECT (vl_log_inspect) and the PIDS array.
+# Shared by the shell tests (sourced): entering a private network namespace and the state of a test
+# there, recording the daemon's outputs and synchronizing on them, and the checks they make. The
+# recording helpers need $INSPECT (vl_log_inspect) and begin_netns_test's $URL, $OUT and PIDS.
 #
 # Synchronization is on what the daemon publishes, never on guessed delays: a recording is read
 # back with vl_log_inspect while lcm-logger writes it. --flush-interval=1 makes each event reach
@@ -24,6 +25,29 @@ enter_private_netns() {
   fi
   ip link set lo up multicast on || { echo "SKIP: cannot bring up lo in the namespace"; exit 77; }
   ip route add 224.0.0.0/4 dev lo || { echo "SKIP: cannot add a multicast route in the namespace"; exit 77; }
+}
+
+# begin_netns_test NAME: inside the namespace, the state every daemon test keeps: URL (LCM on the
+# private loopback), OUT (a new directory, removed at exit unless a check failed), FAILS, and PIDS,
+# the processes killed (SIGKILL) at exit.
+begin_netns_test() {
+  URL='udpm://239.255.76.67:7667?ttl=0'
+  OUT=$(mktemp -d "/tmp/vislam_test_$1.XXXXXX")
+  FAILS=0
+  PIDS=()
+  trap end_netns_test EXIT
+}
+
+end_netns_test() {
+  local p
+  for p in "${PIDS[@]}"; do
+    kill -KILL "$p" 2>/dev/null || true
+  done
+  if [ "$FAILS" -eq 0 ]; then
+    rm -rf "$OUT"
+  else
+    echo "outputs kept in $OUT"
+  fi
 }
 
 # record_start NAME CHANNELS: lcm-logger into $OUT/NAME.lcmlog; its pid in $LOGGER.
