@@ -27,7 +27,7 @@ void vl_work_gate(vl_estimator_t *e, uint32_t k);
 /** RANSAC over k observations with the given hypotheses, on an n-state joint covariance. */
 void vl_work_ransac(vl_estimator_t *e, uint32_t n, uint32_t k, uint32_t hypotheses);
 
-/** The joint update with k observations on n states, then (adapted) the noise adaptation over all k_frame rows. */
+/** The joint update with k observations on n states, then (adapted) the noise adaptation over the k_frame rows it reads. */
 void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint32_t k_frame);
 
 /** The rescue pass: checked observations re-linearized and gated, then the joint update of the rescued ones. */
