@@ -163,6 +163,26 @@ static vl_status_t guard_divergence(vl_estimator_t *e, vl_input_kind_t kind, int
     return VL_RESET;
 }
 
+/* An input the time policy refused (st): counted and logged, and st returned. */
+static vl_status_t refuse_time(vl_estimator_t *e, vl_input_kind_t kind, int64_t utime, vl_status_t st)
+{
+    const int imu = kind == VL_INPUT_IMU;
+    if (imu) {
+        e->counters.imu_rejected++;
+    } else {
+        e->counters.frames_rejected++;
+    }
+    if (st == VL_ERR_TIME_JUMP) {
+        e->counters.time_jumps++;
+        vl_log_msg(e, VL_LOG_WARN, utime,
+                   imu ? "IMU sample jumping in time rejected" : "frame jumping in time rejected");
+    } else {
+        vl_log_msg(e, VL_LOG_WARN, utime,
+                   imu ? "IMU sample out of time order rejected" : "frame out of time order rejected");
+    }
+    return st;
+}
+
 /* ---------------------------------------------------------------- prediction */
 
 vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
@@ -190,14 +210,7 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
         const vl_status_t st = vl_guard_check_time(e, VL_INPUT_IMU, imu->utime);
         if (st != VL_OK) {
             if (!vl_guard_note_timeline(e, VL_INPUT_IMU, imu->utime)) {
-                e->counters.imu_rejected++;
-                if (st == VL_ERR_TIME_JUMP) {
-                    e->counters.time_jumps++;
-                    vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample jumping in time rejected");
-                } else {
-                    vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU sample out of time order rejected");
-                }
-                return st;
+                return refuse_time(e, VL_INPUT_IMU, imu->utime, st);
             }
             /* The inputs follow a new timeline: restart on it with this sample. */
             reset_state(e, 0);
@@ -275,7 +288,9 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     }
     const uint32_t partitioned = vl_outliers_partition(e, rows, k);
     const uint32_t rest = k - partitioned;
-    const uint32_t inliers = vl_rows_limit(e, rows, partitioned);
+    /* One cap for both updates: the state size does not change between them. */
+    const uint32_t cap = vl_rows_cap(e);
+    const uint32_t inliers = vl_rows_limit(e, rows, partitioned, cap);
     double prior_diag[6];
     for (uint32_t i = 0; i < 6; ++i) {
         prior_diag[i] = *vl_P_at(e, i, i);
@@ -293,7 +308,6 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     uint32_t rescued = vl_outliers_rescue(e, frame, rows, partitioned, rest);
     e->counters.observations_rescued += rescued;
     e->counters.observations_gated += rest - rescued;
-    const uint32_t cap = vl_rows_cap(e);
     if (cap > 0 && inliers + rescued > cap) {
         e->counters.observations_deferred += inliers + rescued - cap;
         rescued = cap - inliers;
@@ -318,14 +332,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     if (time_st != VL_OK) {
         /* A frame adds to a candidate timeline; the restart waits for an IMU sample to set the clock. */
         (void)vl_guard_note_timeline(e, VL_INPUT_FRAME, frame->utime);
-        e->counters.frames_rejected++;
-        if (time_st == VL_ERR_TIME_JUMP) {
-            e->counters.time_jumps++;
-            vl_log_msg(e, VL_LOG_WARN, frame->utime, "frame jumping in time rejected");
-        } else {
-            vl_log_msg(e, VL_LOG_WARN, frame->utime, "frame out of time order rejected");
-        }
-        return time_st;
+        return refuse_time(e, VL_INPUT_FRAME, frame->utime, time_st);
     }
     vl_guard_time_passed(e, frame->utime);
     if (vl_guard_imu_silent_at(e, frame->utime)) {

@@ -82,9 +82,8 @@ uint32_t vl_rows_cap(const vl_estimator_t *e)
 }
 
 /* The others stay in the window and are used in later frames. */
-uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m)
+uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m, uint32_t cap)
 {
-    const uint32_t cap = vl_rows_cap(e);
     if (cap == 0 || m <= cap) {
         return m;
     }

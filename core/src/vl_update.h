@@ -30,11 +30,11 @@ void vl_rows_swap(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t a, uint32_t b);
 uint32_t vl_rows_cap(const vl_estimator_t *e);
 
 /**
- * The time bound: when more than vl_rows_cap rows are given, an
- * evenly spread subset of that many moves to the front and the others are
+ * The time bound: when more than cap rows (vl_rows_cap; 0 = all) are given,
+ * an evenly spread subset of that many moves to the front and the others are
  * counted as deferred. Returns how many rows the update uses.
  */
-uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m);
+uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m, uint32_t cap);
 
 /**
  * Joint update with the first m rows, then the state correction it gives
