@@ -699,9 +699,9 @@ void test_admissions_per_frame_are_bounded_and_the_rest_wait(void)
  * vehicle at rest saw it, the other jumps 25 px sideways (a moving object). No
  * single-observation hypothesis explains both, so RANSAC has no consensus and the
  * gate's verdict against the prediction decides: the still landmark is used, the
- * jump is not, and the pose stays at rest. (Trusting the first hypothesis drawn,
- * as any support used to count, moved the vehicle 0.15 m toward the jump when it
- * was drawn first.)
+ * jump is not, and the pose stays at rest. Trusting the first hypothesis drawn
+ * instead moves the vehicle 0.15 m toward the jump whenever the jump is drawn
+ * first, so the jump comes at several frame indices (they seed the draws).
  */
 void test_sparse_frame_without_consensus_keeps_the_gate_verdict(void)
 {

@@ -349,9 +349,9 @@ void test_realistic_sparse_drives_with_noisy_velocities_do_no_harm(void)
  * The sparsest realistic drive: about 3 observations per frame (the simulator's
  * realistic conditions capped at 5) and clean velocities, whose only error is the
  * simulator's constant angular offset. With so few observations a frame often has
- * no two that agree; trusting one of them at random took seed 1 to 36.0 m against
- * dead reckoning's 24.5. Seed 2 still does harm (35.97 against 31.55 m; README,
- * What does not work yet); seeds 3 to 8 do none, before the rule and after.
+ * no two that agree; trusting one of them at random takes seed 1 to 36.0 m against
+ * dead reckoning's 24.5. Seed 2 does harm either way (35.97 against 31.55 m;
+ * README, What does not work yet); seeds 3 to 8 do none either way.
  */
 void test_realistic_sparsest_clean_drive_does_no_harm(void)
 {
