@@ -694,6 +694,47 @@ void test_admissions_per_frame_are_bounded_and_the_rest_wait(void)
     TEST_ASSERT_EQUAL_UINT64(7 + 2, c->landmarks_deferred);
 }
 
+/*
+ * A sparse frame whose two observations disagree: one landmark stays where the
+ * vehicle at rest saw it, the other jumps 25 px sideways (a moving object). No
+ * single-observation hypothesis explains both, so RANSAC has no consensus and the
+ * gate's verdict against the prediction decides: the still landmark is used, the
+ * jump is not, and the pose stays at rest. Trusting the first hypothesis drawn
+ * instead moves the vehicle 0.15 m toward the jump whenever the jump is drawn
+ * first, so the jump comes at several frame indices (they seed the draws).
+ */
+void test_sparse_frame_without_consensus_keeps_the_gate_verdict(void)
+{
+    static vl_stereo_frame_t frame;
+    for (int32_t first = 0; first < 8; ++first) {
+        vl_config_t cfg;
+        kitti_config(&cfg);
+        cfg.min_track_length = 1;
+        vl_imu_sample_t s = start_at(&cfg, 0);
+        make_frame(&cfg, &frame, 0, 2, 0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+        TEST_ASSERT_EQUAL_UINT32(2, vl_window_size(&est));
+        for (int64_t step = 1; step <= 1 + first; ++step) { /* the frame index seeds the hypotheses */
+            s.utime = 100000 * step;
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+            make_frame(&cfg, &frame, s.utime, 2, 0);
+            if (step == 1 + first) {
+                frame.obs[1].u_left += 25.0;
+                frame.obs[1].u_right += 25.0;
+            }
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+        }
+        vl_pose_t pose;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+        const double moved = sqrt(pose.position[0] * pose.position[0] + pose.position[1] * pose.position[1] +
+                                  pose.position[2] * pose.position[2]);
+        printf("jump at frame %d: pose moved %.4f m, %llu observations gated\n", (int)first + 1, moved,
+               (unsigned long long)vl_get_counters(&est)->observations_gated);
+        TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->observations_gated);
+        TEST_ASSERT_TRUE(moved < 0.01);
+    }
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -719,5 +760,6 @@ int main(void)
     RUN_TEST(test_update_work_bound_uses_fewer_observations_in_a_larger_window);
     RUN_TEST(test_admissions_per_frame_are_bounded_and_the_rest_wait);
     RUN_TEST(test_update_counts_a_repeated_image_and_nothing_else);
+    RUN_TEST(test_sparse_frame_without_consensus_keeps_the_gate_verdict);
     return UNITY_END();
 }

@@ -32,6 +32,14 @@ static double residual_after(const vl_la_obs_t *row, const double *dx)
     return acc;
 }
 
+/*
+ * A hypothesis always explains its own observation: its support says something
+ * only when it holds another one too. A frame without such a consensus (a sparse
+ * frame whose few observations disagree pairwise) keeps the gate's verdict on each
+ * observation against the predicted state instead of trusting one at random.
+ */
+#define VL_RANSAC_MIN_CONSENSUS 2u
+
 /* splitmix64: hypotheses drawn from the frame index, so a replay draws the same ones. */
 static uint64_t next_random(uint64_t *state)
 {
@@ -69,6 +77,8 @@ void vl_outliers_break_all(vl_estimator_t *e, uint32_t k)
 /*
  * Each hypothesis is the state one observation alone would give; the
  * observations it explains to within ransac_threshold pixels are its support.
+ * The best supported set of at least VL_RANSAC_MIN_CONSENSUS replaces the gate's
+ * flags in work_inlier; without one the gate's flags stay.
  */
 void vl_outliers_ransac(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
 {
@@ -89,7 +99,7 @@ void vl_outliers_ransac(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
             flags[i] = residual_after(&rows[i], e->work_dx) <= thr2;
             support += flags[i];
         }
-        if (support > best_support) {
+        if (support > best_support && support >= VL_RANSAC_MIN_CONSENSUS) {
             best_support = support;
             memcpy(inlier, flags, k);
         }

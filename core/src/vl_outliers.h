@@ -31,8 +31,9 @@ int vl_outliers_reassociated(const vl_estimator_t *e, uint32_t k, uint32_t contr
 void vl_outliers_break_all(vl_estimator_t *e, uint32_t k);
 
 /**
- * 1-point RANSAC: replaces the inlier flags with the support of the best of
- * ransac_hypotheses single-observation corrections.
+ * 1-point RANSAC: replaces the inlier flags (the gate's) with the support of the
+ * best of ransac_hypotheses single-observation corrections, when that support
+ * holds at least two observations; otherwise the gate's flags stay.
  */
 void vl_outliers_ransac(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k);
 

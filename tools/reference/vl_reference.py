@@ -33,6 +33,7 @@ from vislam_tools.lcmtypes import load, load_lcm
 CORE_DIM = 12                # rho, phi, linear offset, angular offset
 MIN_CAMERA_DEPTH = 1e-3      # m; a point nearer than this in front of the camera is "behind" it
 MIN_ROWS_FOR_REASSOCIATION = 8
+RANSAC_MIN_CONSENSUS = 2     # a hypothesis supports its own row: a consensus needs another
 MAX_PENDING = 512            # candidate tracks remembered (2 x VL_MAX_FRAME_FEATURES)
 MAX_FRAME_FEATURES = 256
 AGE_BONUS, AGE_CAP = 0.5, 4  # admission score: disparity x (1 + 0.5 min(age, 4))
@@ -680,8 +681,10 @@ class Filter:
 
     def ransac(self, rows, inlier):
         """1-point RANSAC: each hypothesis is the correction one observation alone would give,
-        dx = P H^T S^-1 r; its support, the rows left within ransac_threshold px. The frame index
-        seeds splitmix64, so a replay draws the same hypotheses."""
+        dx = P H^T S^-1 r; its support, the rows left within ransac_threshold px. The best support
+        replaces the gate's flags only when it holds at least RANSAC_MIN_CONSENSUS rows (a hypothesis
+        always supports its own row). The frame index seeds splitmix64, so a replay draws the same
+        hypotheses."""
         k = len(rows)
         thr2 = self.cfg["ransac_threshold"] ** 2
         H = [np.hstack([r.H_pose, r.H_landmark]) for r in rows]
@@ -699,7 +702,7 @@ class Filter:
             w = np.linalg.solve(Lc.T, np.linalg.solve(Lc, rows[pick].residual))
             dx = PHt @ w
             flags = [float(np.sum((r.residual - Hi @ dx[ci]) ** 2)) <= thr2 for r, Hi, ci in zip(rows, H, cols)]
-            if sum(flags) > best:
+            if sum(flags) > best and sum(flags) >= RANSAC_MIN_CONSENSUS:
                 best, inlier = sum(flags), flags
         return inlier
 
