@@ -160,3 +160,42 @@ def consistency(est_poses, gt_positions, position_var):
         "sigma_rms_body": {ax: float(np.sqrt(np.mean(var[used, i]))) for i, ax in enumerate("xyz")},
     }
     return summary, e_body, sigma, nees, used
+
+
+def segment_differences(ref_poses, other_poses, length):
+    """Where two trajectories part: their relative motions over consecutive segments compared.
+
+    ref_poses, other_poses: (N, 4, 4) world-from-body poses, paired row by row. The trajectory is
+    cut into segments of `length` poses (the last may be shorter); for each, the motion
+    D = T_start^-1 T_end of both (in the body frame at the segment's start, so no alignment is
+    needed and an error made earlier does not count again) and their difference:
+    translation |t_other - t_ref| (m), rotation angle of R_ref^T R_other (rad), length ratio
+    |t_other| / |t_ref|. Returns a dict of arrays, one entry per segment: start, end (row
+    indices), ref_distance (m), ref_turn (rad), d_translation (m), d_rotation (rad), scale.
+    """
+    ref_poses = np.asarray(ref_poses, dtype=float)
+    other_poses = np.asarray(other_poses, dtype=float)
+    if ref_poses.shape != other_poses.shape or ref_poses.shape[0] < 2:
+        raise ToolError("segments: two paired trajectories of at least 2 poses each are needed")
+    if length < 1:
+        raise ToolError("segments: the segment length must be at least 1 pose")
+    n = ref_poses.shape[0]
+    starts = np.arange(0, n - 1, length)
+    ends = np.minimum(starts + length, n - 1)
+    out = {k: np.zeros(len(starts)) for k in ("ref_distance", "ref_turn", "d_translation", "d_rotation", "scale")}
+    for k, (a, b) in enumerate(zip(starts, ends)):
+        d_ref = np.linalg.solve(ref_poses[a], ref_poses[b])
+        d_other = np.linalg.solve(other_poses[a], other_poses[b])
+        dist = np.linalg.norm(d_ref[:3, 3])
+        out["ref_distance"][k] = dist
+        out["ref_turn"][k] = _rotation_angle(d_ref[:3, :3])
+        out["d_translation"][k] = np.linalg.norm(d_other[:3, 3] - d_ref[:3, 3])
+        out["d_rotation"][k] = _rotation_angle(d_ref[:3, :3].T @ d_other[:3, :3])
+        out["scale"][k] = np.linalg.norm(d_other[:3, 3]) / dist if dist > 0 else np.nan
+    out["start"], out["end"] = starts, ends
+    return out
+
+
+def _rotation_angle(r):
+    """Angle (rad) of a rotation matrix."""
+    return float(np.arccos(np.clip((np.trace(r) - 1.0) * 0.5, -1.0, 1.0)))
