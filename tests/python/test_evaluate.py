@@ -238,15 +238,16 @@ def test_frame_stats_are_the_running_counters_and_feed_segments(vislam_run, tmp_
     header = fs.read_text().splitlines()[0].split()
     rows = np.loadtxt(fs, ndmin=2)
     counters = json.loads(stats.read_text())["core_counters"]
-    assert header[:2] == ["#", "time"] and header[-3:] == ["linear_velocity_noise", "angular_velocity_noise",
-                                                           "pixel_noise"]
+    assert header[:2] == ["#", "time"] and header[-9:-6] == ["linear_velocity_noise", "angular_velocity_noise",
+                                                             "pixel_noise"]
+    assert header[-6:] == [f"{k}_offset_{a}" for k in ("linear", "angular") for a in "xyz"]
     assert rows.shape == (len(read_tum(traj)), len(header) - 1)
     assert np.allclose(rows[:, 0], read_tum(traj).times)
     for name in counters:  # the end of the run hands the window to the map: after the last frame
         last = rows[-1, header.index(name) - 1]
         assert last == counters[name] if name != "landmarks_marginalized" else last <= counters[name], name
     assert np.all(np.diff(rows[:, header.index("observations_used") - 1]) >= 0)
-    assert np.all(rows[:, -3:] > 0)
+    assert np.all(rows[:, -9:-6] > 0) and np.any(rows[:, -6:] != 0)  # noises in use; offsets estimated
     csv = tmp_path / "seg.csv"
     assert main(["segments", "--reference", str(dr), "--estimate", str(traj), "--frame-stats", str(fs),
                  "--csv", str(csv)]) == 0

@@ -89,7 +89,8 @@ static void usage(FILE *f)
             "                       (body-frame right perturbation, m^2 and rad^2, see vislam.h)\n"
             "  --frame-stats FILE   one line per trajectory line: time, every core counter (running\n"
             "                       totals, named in the header line) and the per-sample noises in\n"
-            "                       use (linear m/s, angular rad/s, pixel px)\n"
+            "                       use (linear m/s, angular rad/s, pixel px) and the estimated\n"
+            "                       input offsets (linear m/s, angular rad/s; x y z each)\n"
             "  --config FILE        INI configuration on top of the defaults (see tools/vislam.ini)\n"
             "  --preset NAME        default|seed: start from this preset (conflicts with a different\n"
             "                       [estimator] preset in the config file)\n"
@@ -229,21 +230,25 @@ static void write_frame_stats_header(FILE *f)
 #define VL_FRAME_STATS_NAME_(type, name, meaning) fputs(" " #name, f);
     VL_COUNTERS(VL_FRAME_STATS_NAME_)
 #undef VL_FRAME_STATS_NAME_
-    fputs(" linear_velocity_noise angular_velocity_noise pixel_noise\n", f);
+    fputs(" linear_velocity_noise angular_velocity_noise pixel_noise linear_offset_x linear_offset_y linear_offset_z"
+          " angular_offset_x angular_offset_y angular_offset_z\n",
+          f);
 }
 
-/* One frame-stats line: the time as the TUM writer prints it, the running core counters and the
-   noises in use after the frame's update. */
+/* One frame-stats line: the time as the TUM writer prints it, the running core counters, the
+   noises in use and the estimated input offsets after the frame's update. */
 static void write_frame_stats_line(FILE *f, int64_t utime, const vl_counters_t *c, const vl_pose_t *pose)
 {
     write_time(f, utime);
 #define VL_FRAME_STATS_VALUE_(type, name, meaning) fprintf(f, " %llu", (unsigned long long)c->name);
     VL_COUNTERS(VL_FRAME_STATS_VALUE_)
 #undef VL_FRAME_STATS_VALUE_
-    const double noise[3] = {pose->linear_velocity_noise, pose->angular_velocity_noise, pose->pixel_noise};
-    for (int i = 0; i < 3; ++i) {
+    const double tail[9] = {pose->linear_velocity_noise, pose->angular_velocity_noise, pose->pixel_noise,
+                            pose->linear_offset[0],      pose->linear_offset[1],       pose->linear_offset[2],
+                            pose->angular_offset[0],     pose->angular_offset[1],      pose->angular_offset[2]};
+    for (int i = 0; i < 9; ++i) {
         char v[VL_CLI_DOUBLE_MAX];
-        vl_cli_format_double(v, sizeof(v), noise[i]);
+        vl_cli_format_double(v, sizeof(v), tail[i]);
         fprintf(f, " %s", v);
     }
     fputc('\n', f);
