@@ -1,4 +1,5 @@
 import json
+import os
 import subprocess
 import sys
 
@@ -8,6 +9,7 @@ import pytest
 from conftest import REPO, evo_rmse
 from vislam_tools.evaluate import main
 from vislam_tools.geometry import make_pose, se3_exp, se3_inv, so3_exp
+from vislam_tools.metrics import reprojection_check
 from vislam_tools.trajio import read_tum, write_tum
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -217,7 +219,6 @@ def test_segments_finds_the_one_segment_where_two_trajectories_part(tmp_path, ca
 
 @pytest.fixture(scope="module")
 def vislam_run():
-    import os
     build = os.environ.get("VISLAM_BUILD_DIR") or os.environ.get("VL_BUILD_DIR") or REPO / "build"
     exe = REPO / build / "bin" / "vislam-run"
     if not exe.is_file():
@@ -255,3 +256,39 @@ def test_frame_stats_are_the_running_counters_and_feed_segments(vislam_run, tmp_
     assert tab["observations_used"].sum() == pytest.approx(rows[-1, header.index("observations_used") - 1]
                                                            - rows[0, header.index("observations_used") - 1])
     assert np.all(tab["d_trans_0"] > 0)  # vision moves vislam off dead reckoning
+
+
+def test_reprojection_prefers_the_true_motion_and_skips_stale_frames(tmp_path, capsys):
+    """Tracks projected from a known drive: its own trajectory explains them to rounding, a noisy
+    copy does not, and a stale frame (the previous frame's pixels again) is read as that frame."""
+    times, poses = drive(n=40)
+    fx, cx, cy, b = 500.0, 320.0, 240.0, 0.5
+    cam_T_imu = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float)  # z forward
+    rng = np.random.default_rng(3)
+    world = np.column_stack([rng.uniform(0, 80, 800), rng.uniform(-20, 20, 800), rng.uniform(-2, 4, 800)])
+    feats = -np.ones((4, 800, 40))
+    for j, T in enumerate(poses):
+        c = (world - (T @ se3_inv(cam_T_imu))[:3, 3]) @ (T @ se3_inv(cam_T_imu))[:3, :3]
+        u, v = fx * c[:, 0] / c[:, 2] + cx, fx * c[:, 1] / c[:, 2] + cy
+        ok = (c[:, 2] > 2) & (c[:, 2] < 40) & (np.abs(u - cx) < 320) & (np.abs(v - cy) < 240)
+        feats[:, ok, j] = [u[ok], v[ok], u[ok] - fx * b / c[ok, 2], v[ok]]
+    feats[:, :, 20] = np.where(feats[:, :, 20] != -1, feats[:, :, 19], -1)  # frame 20 stale
+    feats[:, (feats[0, :, 19] == -1), 20] = -1
+    data = tmp_path / "d.npz"
+    np.savez(data, time_stamps=times[None, :], linear_velocity=np.zeros((3, 40)),
+             rotational_velocity=np.zeros((3, 40)), features=feats, K=np.array([[fx, 0, cx], [0, fx, cy], [0, 0, 1]]),
+             b=np.array(b), cam_T_imu=cam_T_imu)
+    _, noisy = drive(n=40, noise=0.02, seed=7)
+    true_path, noisy_path = tmp_path / "true.tum", tmp_path / "noisy.tum"
+    write_tum(true_path, times, poses)
+    write_tum(noisy_path, times, noisy)
+    assert main(["reprojection", "--data", str(data), "--estimate", str(true_path), "--estimate",
+                 str(noisy_path)]) == 0
+    out = capsys.readouterr().out
+    med = {line.split(":")[0]: float(line.split("error ")[1].split(" px")[0]) for line in out.splitlines()[1:]}
+    assert med["true.tum"] < 0.01 and med["pixels' own fit"] < 0.01
+    assert med["noisy.tum"] > 1.0
+    res = reprojection_check(feats, times, fx, fx, cx, cy, b, cam_T_imu, [(times, poses)])
+    # Not the step from 19 to its stale copy; 20 -> 21 is checked from frame 19's pixels.
+    assert 19 not in res["start"] and 20 in res["start"] and len(res["start"]) >= 20
+    assert np.all(res["median"] < 1e-6)

@@ -13,7 +13,7 @@ import numpy as np
 
 from . import ToolError, cli
 from .geometry import integrate_dead_reckoning, se3_inv
-from .metrics import CHI2_3DOF_95, associate, ate, consistency, rpe, segment_differences
+from .metrics import CHI2_3DOF_95, associate, ate, consistency, reprojection_check, rpe, segment_differences
 from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, read_ground_truth, read_ply,
                      read_tum, write_tum)
 
@@ -143,6 +143,14 @@ def build_parser():
     p.add_argument("--top", type=int, default=10, metavar="N", help="segments printed, largest first (default 10)")
     p.add_argument("--csv", metavar="OUT.csv", help="every segment as CSV")
     p.add_argument("--max-dt", type=float, default=0.02, help="s, time pairing tolerance (default 0.02)")
+
+    p = sub.add_parser("reprojection", help="how well each trajectory's motion explains the stereo tracks",
+                       description=REPROJECTION_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", required=True, metavar="DATA.npz", help="seed dataset (features, K, b, cam_T_imu)")
+    p.add_argument("--estimate", required=True, action="append", metavar="EST.tum",
+                   help="trajectory (TUM, paired with the dataset's frames by time); repeat for more")
+    p.add_argument("--length", type=int, default=1, metavar="K", help="frames per segment (default 1)")
+    p.add_argument("--min-disparity", type=float, default=3.0, help="px, tracks triangulated (default 3)")
 
     p = sub.add_parser("deadreckon", help="integrate a dataset's velocities into a TUM trajectory",
                        description="w_T_i(t+1) = w_T_i(t) exp(tau_t hat(u_t)), w_T_i(0) = I; one line per step.")
@@ -342,6 +350,17 @@ observations used, gated, frames re-associated, repeated, tracks broken, and the
 its end (linear m/s, angular rad/s, pixel px).
 """
 
+REPROJECTION_DESCRIPTION = """\
+Which trajectory the images agree with, without ground truth. For each segment of K frames (a
+stale frame, one repeating the previous frame's pixels for every shared track, stands for the
+frame whose image it shows), the tracks seen at both ends are triangulated at the start (stereo,
+disparity >= --min-disparity), moved by the trajectory's camera motion over the segment and
+projected into the end's left and right images. Printed per trajectory: the median over segments
+of each segment's median track error (px, the largest of u left, v, u right), and the fraction of
+segments under 2 px; and the same for the pose fitted to the pixels alone (robust least squares),
+the floor the tracks allow.
+"""
+
 SEGMENT_COUNTERS = ("observations_used", "observations_gated", "frames_reassociated", "frames_repeated",
                     "tracks_broken")
 SEGMENT_NOISES = ("linear_velocity_noise", "angular_velocity_noise", "pixel_noise")
@@ -424,17 +443,36 @@ def cmd_segments(args):
               f"length ratio {r['scale'][np.isfinite(r['scale'])].mean():.4f}")
     order = np.argsort(-res[0]["d_translation"])[:max(args.top, 0)]
     if len(order):
-        print(f"largest d_trans of [0] (t from the first pose, s):")
+        print("largest d_trans of [0] (t from the first pose, s):")
         print("  " + "  ".join(header))
         for i in order:
             print("  " + "  ".join(f"{v:.4g}" for v in table[i]))
     return 0
 
 
+def cmd_reprojection(args):
+    data = load_npz(args.data)
+    k = np.asarray(data["K"], dtype=float)
+    trajs = [read_tum(p) for p in args.estimate]
+    res = reprojection_check(np.asarray(data["features"], dtype=float),
+                             np.asarray(data["time_stamps"], dtype=float).reshape(-1), k[0, 0], k[1, 1], k[0, 2],
+                             k[1, 2], float(data["b"]), np.asarray(data["cam_T_imu"], dtype=float),
+                             [(t.times, t.poses) for t in trajs], args.length, args.min_disparity)
+    m = res["median"]
+    if m.shape[0] == 0:
+        raise ToolError("reprojection: no segment with 8 tracks seen at both ends and paired with every estimate")
+    print(f"{m.shape[0]} segments of {args.length} frames")
+    for name, col in zip([t.name for t in trajs] + ["pixels' own fit"], m.T):
+        print(f"{name}: median track error {np.median(col):.2f} px (mean of segment medians {col.mean():.2f}), "
+              f"segments under 2 px {np.mean(col < 2.0):.3f}")
+    return 0
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)
     handlers = {"ate": cmd_ate, "plot": cmd_plot, "animate": cmd_animate, "deadreckon": cmd_deadreckon,
-                "consistency": cmd_consistency, "gt": cmd_gt, "segments": cmd_segments}
+                "consistency": cmd_consistency, "gt": cmd_gt, "segments": cmd_segments,
+                "reprojection": cmd_reprojection}
     try:
         return handlers[args.command](args)
     except ToolError as exc:
