@@ -438,8 +438,10 @@ def cmd_segments(args):
     print(f"reference {ref.name}: {len(common)} poses paired, {len(starts)} segments of {args.length}, "
           f"{res[0]['ref_distance'].sum():.1f} m, turning {np.degrees(res[0]['ref_turn']).sum():.0f} deg")
     for k, (name, r) in enumerate(zip(names, res)):
-        print(f"[{k}] {name}: d_trans sum {r['d_translation'].sum():.2f} m, rms {np.sqrt(np.mean(r['d_translation'] ** 2)):.3f} m; "
-              f"d_rot sum {np.degrees(r['d_rotation']).sum():.2f} deg, rms {np.degrees(np.sqrt(np.mean(r['d_rotation'] ** 2))):.3f} deg; "
+        rot = np.degrees(r["d_rotation"])
+        print(f"[{k}] {name}: d_trans sum {r['d_translation'].sum():.2f} m, "
+              f"rms {np.sqrt(np.mean(r['d_translation'] ** 2)):.3f} m; "
+              f"d_rot sum {rot.sum():.2f} deg, rms {np.sqrt(np.mean(rot ** 2)):.3f} deg; "
               f"length ratio {r['scale'][np.isfinite(r['scale'])].mean():.4f}")
     order = np.argsort(-res[0]["d_translation"])[:max(args.top, 0)]
     if len(order):
@@ -451,6 +453,8 @@ def cmd_segments(args):
 
 
 def cmd_reprojection(args):
+    if args.length < 1:
+        raise ToolError("reprojection: the segment length must be at least 1 frame")
     data = load_npz(args.data)
     k = np.asarray(data["K"], dtype=float)
     trajs = [read_tum(p) for p in args.estimate]
