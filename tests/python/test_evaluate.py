@@ -1,4 +1,5 @@
 import json
+import os
 import subprocess
 import sys
 
@@ -8,6 +9,7 @@ import pytest
 from conftest import REPO, evo_rmse
 from vislam_tools.evaluate import main
 from vislam_tools.geometry import make_pose, se3_exp, se3_inv, so3_exp
+from vislam_tools.metrics import reprojection_check
 from vislam_tools.trajio import read_tum, write_tum
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -189,3 +191,104 @@ def test_wrapper_help_mentions_evo():
                          env={"VISLAM_PYTHON": sys.executable, "PATH": "/usr/bin:/bin"}, timeout=120)
     assert res.returncode == 0, res.stderr
     assert "evo" in res.stdout and "--estimate" in res.stdout
+
+
+def test_segments_finds_the_one_segment_where_two_trajectories_part(tmp_path, capsys):
+    """A 0.5 m sidestep between poses 23 and 24 of the estimate shows in that segment only, and an
+    estimate in another world frame compares as equal (relative motions need no alignment)."""
+    times, ref = drive(n=61)
+    est = make_pose(so3_exp([0, 0, 0.7]), [3, -1, 0]) @ ref
+    step = se3_exp([0.0, 0.5, 0.0, 0.0, 0.0, 0.0])
+    # From pose 24 on: the sidestep in the body frame at 23, then the reference's motion.
+    est[24:] = np.array([est[23] @ step @ se3_inv(ref[23]) @ ref[k] for k in range(24, 61)])
+    ref_path, est_path, csv = tmp_path / "ref.tum", tmp_path / "est.tum", tmp_path / "seg.csv"
+    write_tum(ref_path, times, ref)
+    write_tum(est_path, times, est)
+    assert main(["segments", "--reference", str(ref_path), "--estimate", str(est_path), "--estimate",
+                 str(ref_path), "--length", "10", "--csv", str(csv), "--top", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "6 segments of 10" in out
+    tab = np.genfromtxt(csv, delimiter=",", names=True)
+    assert np.allclose(tab["start"], [0, 10, 20, 30, 40, 50]) and np.allclose(tab["end"], [10, 20, 30, 40, 50, 60])
+    assert tab["d_trans_0"][2] == pytest.approx(0.5, abs=1e-6)  # segment 20..30 holds the step
+    assert np.all(np.delete(tab["d_trans_0"], 2) < 1e-6)
+    assert np.all(tab["d_rot_deg_0"] < 1e-4)
+    assert np.all(tab["d_trans_1"] < 1e-9) and np.allclose(tab["scale_1"], 1.0)  # ref against itself
+    assert tab["ref_distance"][0] == pytest.approx(10.0, rel=0.01)  # 1 m per pose
+
+
+@pytest.fixture(scope="module")
+def vislam_run():
+    build = os.environ.get("VISLAM_BUILD_DIR") or os.environ.get("VL_BUILD_DIR") or REPO / "build"
+    exe = REPO / build / "bin" / "vislam-run"
+    if not exe.is_file():
+        pytest.skip(f"{exe} not built")
+    return exe
+
+
+def test_frame_stats_are_the_running_counters_and_feed_segments(vislam_run, tmp_path, capsys):
+    """vislam-run --frame-stats: one line per trajectory line, named columns, its last line equal to
+    the run's final counters; `segments --frame-stats` takes the per-segment counters from it."""
+    traj, fs, stats = tmp_path / "v.tum", tmp_path / "v.fs", tmp_path / "v.json"
+    dr = tmp_path / "dr.tum"
+    sample = REPO / "data" / "sample.lcmlog"
+    subprocess.run([str(vislam_run), str(sample), "--trajectory", str(traj), "--frame-stats", str(fs),
+                    "--stats-json", str(stats), "--quiet"], check=True)
+    subprocess.run([str(vislam_run), str(sample), "--trajectory", str(dr), "--mode", "imu_only", "--quiet"],
+                   check=True)
+    header = fs.read_text().splitlines()[0].split()
+    rows = np.loadtxt(fs, ndmin=2)
+    counters = json.loads(stats.read_text())["core_counters"]
+    assert header[:2] == ["#", "time"] and header[-9:-6] == ["linear_velocity_noise", "angular_velocity_noise",
+                                                             "pixel_noise"]
+    assert header[-6:] == [f"{k}_offset_{a}" for k in ("linear", "angular") for a in "xyz"]
+    assert rows.shape == (len(read_tum(traj)), len(header) - 1)
+    assert np.allclose(rows[:, 0], read_tum(traj).times)
+    for name in counters:  # the end of the run hands the window to the map: after the last frame
+        last = rows[-1, header.index(name) - 1]
+        assert last == counters[name] if name != "landmarks_marginalized" else last <= counters[name], name
+    assert np.all(np.diff(rows[:, header.index("observations_used") - 1]) >= 0)
+    assert np.all(rows[:, -9:-6] > 0) and np.any(rows[:, -6:] != 0)  # noises in use; offsets estimated
+    csv = tmp_path / "seg.csv"
+    assert main(["segments", "--reference", str(dr), "--estimate", str(traj), "--frame-stats", str(fs),
+                 "--csv", str(csv)]) == 0
+    tab = np.genfromtxt(csv, delimiter=",", names=True)
+    assert tab["observations_used"].sum() == pytest.approx(rows[-1, header.index("observations_used") - 1]
+                                                           - rows[0, header.index("observations_used") - 1])
+    assert np.all(tab["d_trans_0"] > 0)  # vision moves vislam off dead reckoning
+
+
+def test_reprojection_prefers_the_true_motion_and_skips_stale_frames(tmp_path, capsys):
+    """Tracks projected from a known drive: its own trajectory explains them to rounding, a noisy
+    copy does not, and a stale frame (the previous frame's pixels again) is read as that frame."""
+    times, poses = drive(n=40)
+    fx, cx, cy, b = 500.0, 320.0, 240.0, 0.5
+    cam_T_imu = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float)  # z forward
+    rng = np.random.default_rng(3)
+    world = np.column_stack([rng.uniform(0, 80, 800), rng.uniform(-20, 20, 800), rng.uniform(-2, 4, 800)])
+    feats = -np.ones((4, 800, 40))
+    for j, T in enumerate(poses):
+        c = (world - (T @ se3_inv(cam_T_imu))[:3, 3]) @ (T @ se3_inv(cam_T_imu))[:3, :3]
+        u, v = fx * c[:, 0] / c[:, 2] + cx, fx * c[:, 1] / c[:, 2] + cy
+        ok = (c[:, 2] > 2) & (c[:, 2] < 40) & (np.abs(u - cx) < 320) & (np.abs(v - cy) < 240)
+        feats[:, ok, j] = [u[ok], v[ok], u[ok] - fx * b / c[ok, 2], v[ok]]
+    feats[:, :, 20] = np.where(feats[:, :, 20] != -1, feats[:, :, 19], -1)  # frame 20 stale
+    feats[:, (feats[0, :, 19] == -1), 20] = -1
+    data = tmp_path / "d.npz"
+    np.savez(data, time_stamps=times[None, :], linear_velocity=np.zeros((3, 40)),
+             rotational_velocity=np.zeros((3, 40)), features=feats, K=np.array([[fx, 0, cx], [0, fx, cy], [0, 0, 1]]),
+             b=np.array(b), cam_T_imu=cam_T_imu)
+    _, noisy = drive(n=40, noise=0.02, seed=7)
+    true_path, noisy_path = tmp_path / "true.tum", tmp_path / "noisy.tum"
+    write_tum(true_path, times, poses)
+    write_tum(noisy_path, times, noisy)
+    assert main(["reprojection", "--data", str(data), "--estimate", str(true_path), "--estimate",
+                 str(noisy_path)]) == 0
+    out = capsys.readouterr().out
+    med = {line.split(":")[0]: float(line.split("error ")[1].split(" px")[0]) for line in out.splitlines()[1:]}
+    assert med["true.tum"] < 0.01 and med["pixels' own fit"] < 0.01
+    assert med["noisy.tum"] > 1.0
+    res = reprojection_check(feats, times, fx, fx, cx, cy, b, cam_T_imu, [(times, poses)])
+    # Not the step from 19 to its stale copy; 20 -> 21 is checked from frame 19's pixels.
+    assert 19 not in res["start"] and 20 in res["start"] and len(res["start"]) >= 20
+    assert np.all(res["median"] < 1e-6)

@@ -38,6 +38,7 @@ typedef struct {
     const char *config_path;
     const char *stats_path;
     const char *covariance_path;
+    const char *frame_stats_path;
     const char *mode;
     const char *preset;
     const char *max_landmarks;
@@ -67,6 +68,8 @@ typedef struct {
     map_t map;
     vl_trajectory_file_t traj;
     FILE *cov_file;
+    FILE *frame_stats_file;
+    const vl_estimator_t *est; /* read by the frame-stats sink */
     uint64_t trajectory_lines;
 } sinks_t;
 
@@ -84,6 +87,10 @@ static void usage(FILE *f)
             "  --covariance FILE    the pose covariance's diagonal, one line per trajectory line:\n"
             "                       time var_rho_x var_rho_y var_rho_z var_phi_x var_phi_y var_phi_z\n"
             "                       (body-frame right perturbation, m^2 and rad^2, see vislam.h)\n"
+            "  --frame-stats FILE   one line per trajectory line: time, every core counter (running\n"
+            "                       totals, named in the header line) and the per-sample noises in\n"
+            "                       use (linear m/s, angular rad/s, pixel px) and the estimated\n"
+            "                       input offsets (linear m/s, angular rad/s; x y z each)\n"
             "  --config FILE        INI configuration on top of the defaults (see tools/vislam.ini)\n"
             "  --preset NAME        default|seed: start from this preset (conflicts with a different\n"
             "                       [estimator] preset in the config file)\n"
@@ -130,6 +137,8 @@ static int parse_args(int argc, char **argv, options_t *o)
             target = &o->config_path;
         } else if (strcmp(a, "--covariance") == 0) {
             target = &o->covariance_path;
+        } else if (strcmp(a, "--frame-stats") == 0) {
+            target = &o->frame_stats_path;
         } else if (strcmp(a, "--stats-json") == 0) {
             target = &o->stats_path;
         } else if (strcmp(a, "--mode") == 0) {
@@ -193,13 +202,19 @@ static void map_sink(void *user, const vl_landmark_t *lm)
 
 /* ---- outputs ---- */
 
-/* One line per pose: the time exactly as the TUM writer prints it, so the two files pair by
-   time, then the diagonal of the 6x6 pose covariance. Write errors are found by ferror at close. */
-static void write_covariance_line(FILE *f, int64_t utime, const vl_pose_t *pose)
+/* A time exactly as the TUM writer prints it (s, 6 decimals), so the per-frame files pair by time. */
+static void write_time(FILE *f, int64_t utime)
 {
     const char *sign = utime < 0 ? "-" : "";
     const uint64_t mag = utime < 0 ? (uint64_t)0 - (uint64_t)utime : (uint64_t)utime;
     fprintf(f, "%s%llu.%06llu", sign, (unsigned long long)(mag / 1000000u), (unsigned long long)(mag % 1000000u));
+}
+
+/* One line per pose: the time exactly as the TUM writer prints it, so the two files pair by
+   time, then the diagonal of the 6x6 pose covariance. Write errors are found by ferror at close. */
+static void write_covariance_line(FILE *f, int64_t utime, const vl_pose_t *pose)
+{
+    write_time(f, utime);
     for (int i = 0; i < 6; ++i) {
         char v[VL_CLI_DOUBLE_MAX];
         vl_cli_format_double(v, sizeof(v), pose->covariance[i * 6 + i]);
@@ -208,7 +223,38 @@ static void write_covariance_line(FILE *f, int64_t utime, const vl_pose_t *pose)
     fputc('\n', f);
 }
 
-/* Session sink: one TUM line (and covariance line) per frame the core used. */
+/* The frame-stats header: the column names, counters in VL_COUNTERS order. */
+static void write_frame_stats_header(FILE *f)
+{
+    fputs("# time", f);
+#define VL_FRAME_STATS_NAME_(type, name, meaning) fputs(" " #name, f);
+    VL_COUNTERS(VL_FRAME_STATS_NAME_)
+#undef VL_FRAME_STATS_NAME_
+    fputs(" linear_velocity_noise angular_velocity_noise pixel_noise linear_offset_x linear_offset_y linear_offset_z"
+          " angular_offset_x angular_offset_y angular_offset_z\n",
+          f);
+}
+
+/* One frame-stats line: the time as the TUM writer prints it, the running core counters, the
+   noises in use and the estimated input offsets after the frame's update. */
+static void write_frame_stats_line(FILE *f, int64_t utime, const vl_counters_t *c, const vl_pose_t *pose)
+{
+    write_time(f, utime);
+#define VL_FRAME_STATS_VALUE_(type, name, meaning) fprintf(f, " %llu", (unsigned long long)c->name);
+    VL_COUNTERS(VL_FRAME_STATS_VALUE_)
+#undef VL_FRAME_STATS_VALUE_
+    const double tail[9] = {pose->linear_velocity_noise, pose->angular_velocity_noise, pose->pixel_noise,
+                            pose->linear_offset[0],      pose->linear_offset[1],       pose->linear_offset[2],
+                            pose->angular_offset[0],     pose->angular_offset[1],      pose->angular_offset[2]};
+    for (int i = 0; i < 9; ++i) {
+        char v[VL_CLI_DOUBLE_MAX];
+        vl_cli_format_double(v, sizeof(v), tail[i]);
+        fprintf(f, " %s", v);
+    }
+    fputc('\n', f);
+}
+
+/* Session sink: one TUM line (and covariance and frame-stats lines) per frame the core used. */
 static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t sequence, const vl_pose_t *pose)
 {
     sinks_t *k = (sinks_t *)user;
@@ -220,7 +266,45 @@ static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t 
     if (k->cov_file != NULL) {
         write_covariance_line(k->cov_file, utime, pose);
     }
+    if (k->frame_stats_file != NULL) {
+        write_frame_stats_line(k->frame_stats_file, utime, vl_get_counters(k->est), pose);
+    }
     k->trajectory_lines++;
+}
+
+/* Opens an optional per-frame output for writing; NULL (reported) when it cannot. */
+static FILE *open_output(const char *path)
+{
+    FILE *f = fopen(path, "w");
+    if (f == NULL) {
+        fprintf(stderr, "vislam-run: cannot write %s: %s\n", path, strerror(errno));
+    }
+    return f;
+}
+
+/* Closes an optional per-frame output; -1 (reported) on a write error. NULL: nothing to close. */
+static int close_checked(FILE *f, const char *path)
+{
+    if (f == NULL) {
+        return 0;
+    }
+    const int bad = ferror(f);
+    if (fclose(f) != 0 || bad) {
+        fprintf(stderr, "vislam-run: write error on %s\n", path);
+        return -1;
+    }
+    return 0;
+}
+
+/* Closes the optional per-frame outputs on an early exit (their contents no longer matter). */
+static void close_optional(sinks_t *k)
+{
+    if (k->cov_file != NULL) {
+        fclose(k->cov_file);
+    }
+    if (k->frame_stats_file != NULL) {
+        fclose(k->frame_stats_file);
+    }
 }
 
 static int write_ply(const char *path, const map_t *m)
@@ -477,15 +561,24 @@ int main(int argc, char **argv)
         free(est);
         return 1;
     }
+    int open_failed = 0;
     if (o.covariance_path != NULL) {
-        sinks.cov_file = fopen(o.covariance_path, "w");
-        if (sinks.cov_file == NULL) {
-            fprintf(stderr, "vislam-run: cannot write covariance %s: %s\n", o.covariance_path, strerror(errno));
-            vl_trajectory_close(&sinks.traj);
-            vl_log_reader_close(&reader);
-            free(est);
-            return 1;
+        sinks.cov_file = open_output(o.covariance_path);
+        open_failed |= sinks.cov_file == NULL;
+    }
+    if (o.frame_stats_path != NULL) {
+        sinks.frame_stats_file = open_output(o.frame_stats_path);
+        open_failed |= sinks.frame_stats_file == NULL;
+        if (sinks.frame_stats_file != NULL) {
+            write_frame_stats_header(sinks.frame_stats_file);
         }
+    }
+    if (open_failed) {
+        close_optional(&sinks);
+        vl_trajectory_close(&sinks.traj);
+        vl_log_reader_close(&reader);
+        free(est);
+        return 1;
     }
 
     vl_session_options_t so;
@@ -497,11 +590,10 @@ int main(int argc, char **argv)
     so.callbacks.on_pose = on_pose;
     so.callbacks.on_landmark = map_sink;
     so.callbacks.user = &sinks;
+    sinks.est = est;
     if (vl_session_init(&session, est, &cfg, &so) != VL_OK) {
         fprintf(stderr, "vislam-run: vl_init refused the configuration\n");
-        if (sinks.cov_file != NULL) {
-            fclose(sinks.cov_file);
-        }
+        close_optional(&sinks);
         vl_trajectory_close(&sinks.traj);
         vl_log_reader_close(&reader);
         free(est);
@@ -531,12 +623,9 @@ int main(int argc, char **argv)
         fprintf(stderr, "vislam-run: write error on trajectory %s\n", o.trajectory_path);
         io_error = 1;
     }
-    if (sinks.cov_file != NULL) {
-        int bad = ferror(sinks.cov_file);
-        if (fclose(sinks.cov_file) != 0 || bad) {
-            fprintf(stderr, "vislam-run: write error on covariance %s\n", o.covariance_path);
-            io_error = 1;
-        }
+    if (close_checked(sinks.cov_file, o.covariance_path) != 0 ||
+        close_checked(sinks.frame_stats_file, o.frame_stats_path) != 0) {
+        io_error = 1;
     }
     if (sinks.map.oom) {
         fprintf(stderr, "vislam-run: out of memory collecting the map; it is incomplete\n");

@@ -13,7 +13,7 @@ import numpy as np
 
 from . import ToolError, cli
 from .geometry import integrate_dead_reckoning, se3_inv
-from .metrics import CHI2_3DOF_95, associate, ate, consistency, rpe
+from .metrics import CHI2_3DOF_95, associate, ate, consistency, reprojection_check, rpe, segment_differences
 from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, read_ground_truth, read_ply,
                      read_tum, write_tum)
 
@@ -131,6 +131,26 @@ def build_parser():
                        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
     _add_gt_args(p, required=True, pairing=False)
     p.add_argument("--out", required=True, metavar="GT.tum")
+
+    p = sub.add_parser("segments", help="where two trajectories part: their motions per segment compared",
+                       description=SEGMENTS_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--reference", required=True, metavar="REF.tum", help="trajectory compared against (TUM)")
+    p.add_argument("--estimate", required=True, action="append", metavar="EST.tum",
+                   help="trajectory compared with the reference (TUM); repeat for more than one")
+    p.add_argument("--length", type=int, default=10, metavar="K", help="poses per segment (default 10)")
+    p.add_argument("--frame-stats", metavar="FS.txt",
+                   help="vislam-run --frame-stats of the first estimate's run: per-segment counters in the table")
+    p.add_argument("--top", type=int, default=10, metavar="N", help="segments printed, largest first (default 10)")
+    p.add_argument("--csv", metavar="OUT.csv", help="every segment as CSV")
+    p.add_argument("--max-dt", type=float, default=0.02, help="s, time pairing tolerance (default 0.02)")
+
+    p = sub.add_parser("reprojection", help="how well each trajectory's motion explains the stereo tracks",
+                       description=REPROJECTION_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", required=True, metavar="DATA.npz", help="seed dataset (features, K, b, cam_T_imu)")
+    p.add_argument("--estimate", required=True, action="append", metavar="EST.tum",
+                   help="trajectory (TUM, paired with the dataset's frames by time); repeat for more")
+    p.add_argument("--length", type=int, default=1, metavar="K", help="frames per segment (default 1)")
+    p.add_argument("--min-disparity", type=float, default=3.0, help="px, tracks triangulated (default 3)")
 
     p = sub.add_parser("deadreckon", help="integrate a dataset's velocities into a TUM trajectory",
                        description="w_T_i(t+1) = w_T_i(t) exp(tau_t hat(u_t)), w_T_i(0) = I; one line per step.")
@@ -317,10 +337,146 @@ def cmd_deadreckon(args):
     return 0
 
 
+SEGMENTS_DESCRIPTION = """\
+Where two trajectories part, without ground truth. Poses are paired by time (every estimate with
+the reference); the paired run is cut into segments of K poses, and for each the motion over the
+segment, T_start^-1 T_end, of every estimate is compared with the reference's: d_trans (m, the
+difference of the two translations in the body frame at the segment's start), d_rot (deg, the
+angle between the two rotations) and scale (the length of the estimate's translation over the
+reference's). An error made in one segment does not count again in the next, unlike the ATE.
+Printed: the totals and the N segments of the first estimate with the largest d_trans; with
+--frame-stats (vislam-run --frame-stats of the first estimate's run) also the segment's counters:
+observations used, gated, frames re-associated, repeated, tracks broken, and the noises in use at
+its end (linear m/s, angular rad/s, pixel px).
+"""
+
+REPROJECTION_DESCRIPTION = """\
+Which trajectory the images agree with, without ground truth. For each segment of K frames (a
+stale frame, one repeating the previous frame's pixels for every shared track, stands for the
+frame whose image it shows), the tracks seen at both ends are triangulated at the start (stereo,
+disparity >= --min-disparity), moved by the trajectory's camera motion over the segment and
+projected into the end's left and right images. Printed per trajectory: the median over segments
+of each segment's median track error (px, the largest of u left, v, u right), and the fraction of
+segments under 2 px; and the same for the pose fitted to the pixels alone (robust least squares),
+the floor the tracks allow.
+"""
+
+SEGMENT_COUNTERS = ("observations_used", "observations_gated", "frames_reassociated", "frames_repeated",
+                    "tracks_broken")
+SEGMENT_NOISES = ("linear_velocity_noise", "angular_velocity_noise", "pixel_noise")
+
+
+def read_frame_stats(path):
+    """vislam-run --frame-stats: (times (N,), {column name: (N,) array})."""
+    try:
+        with open(path) as f:
+            header = f.readline().split()
+    except OSError as exc:
+        raise ToolError(f"cannot read {path}: {exc.strerror}") from exc
+    if len(header) < 2 or header[0] != "#" or header[1] != "time":
+        raise ToolError(f"{path}: not a vislam-run --frame-stats file (no '# time ...' header)")
+    names = header[1:]
+    try:
+        rows = np.loadtxt(path, comments="#", ndmin=2)
+    except ValueError as exc:
+        raise ToolError(f"{path}: {exc}") from exc
+    if rows.shape[0] == 0 or rows.shape[1] != len(names):
+        raise ToolError(f"{path}: {len(names)} columns named, rows have {rows.shape[1] if rows.size else 0}")
+    return rows[:, 0], {name: rows[:, i] for i, name in enumerate(names)}
+
+
+def cmd_segments(args):
+    ref = read_tum(args.reference)
+    ests = [read_tum(p) for p in args.estimate]
+    # Reference rows every estimate pairs with, and each estimate's row for them.
+    common = np.arange(len(ref))
+    pairs = []
+    for est in ests:
+        e, r, _ = associate(est.times, ref.times, "time", args.max_dt)
+        pairs.append(dict(zip(r.tolist(), e.tolist())))
+        common = np.intersect1d(common, r)
+    if len(common) < 2:
+        raise ToolError("segments: fewer than 2 reference poses pair with every estimate by time")
+    res = [segment_differences(ref.poses[common], est.poses[[pr[i] for i in common]], args.length)
+           for est, pr in zip(ests, pairs)]
+    starts, ends = res[0]["start"], res[0]["end"]
+    t0 = ref.times[common[0]]
+    extra = {}
+    if args.frame_stats:
+        ft, cols = read_frame_stats(args.frame_stats)
+        missing = [c for c in SEGMENT_COUNTERS + SEGMENT_NOISES if c not in cols]
+        if missing:
+            raise ToolError(f"{args.frame_stats}: no column {', '.join(missing)}")
+        e0 = [pairs[0][i] for i in common]
+        fi, ei, _ = associate(ft, ests[0].times[e0], "time", args.max_dt)
+        row = dict(zip(ei.tolist(), fi.tolist()))
+        if len(row) < len(e0):
+            raise ToolError(f"{args.frame_stats}: {len(e0) - len(row)} poses of {args.estimate[0]} have no line")
+        a = np.array([row[int(i)] for i in starts])
+        b = np.array([row[int(i)] for i in ends])
+        for c in SEGMENT_COUNTERS:
+            extra[c] = cols[c][b] - cols[c][a]
+        for c in SEGMENT_NOISES:
+            extra[c] = cols[c][b]
+
+    names = [est.name for est in ests]
+    header = ["start_time", "start", "end", "ref_distance", "ref_turn_deg"]
+    for k in range(len(ests)):
+        header += [f"d_trans_{k}", f"d_rot_deg_{k}", f"scale_{k}"]
+    header += list(extra)
+    table = [ref.times[common[starts]] - t0, starts, ends, res[0]["ref_distance"], np.degrees(res[0]["ref_turn"])]
+    for r in res:
+        table += [r["d_translation"], np.degrees(r["d_rotation"]), r["scale"]]
+    table += list(extra.values())
+    table = np.column_stack(table)
+    if args.csv:
+        try:
+            np.savetxt(args.csv, table, delimiter=",", header=",".join(header), comments="", fmt="%.6g")
+        except OSError as exc:
+            raise ToolError(f"cannot write {args.csv}: {exc.strerror}") from exc
+
+    print(f"reference {ref.name}: {len(common)} poses paired, {len(starts)} segments of {args.length}, "
+          f"{res[0]['ref_distance'].sum():.1f} m, turning {np.degrees(res[0]['ref_turn']).sum():.0f} deg")
+    for k, (name, r) in enumerate(zip(names, res)):
+        rot = np.degrees(r["d_rotation"])
+        print(f"[{k}] {name}: d_trans sum {r['d_translation'].sum():.2f} m, "
+              f"rms {np.sqrt(np.mean(r['d_translation'] ** 2)):.3f} m; "
+              f"d_rot sum {rot.sum():.2f} deg, rms {np.sqrt(np.mean(rot ** 2)):.3f} deg; "
+              f"length ratio {r['scale'][np.isfinite(r['scale'])].mean():.4f}")
+    order = np.argsort(-res[0]["d_translation"])[:max(args.top, 0)]
+    if len(order):
+        print("largest d_trans of [0] (t from the first pose, s):")
+        print("  " + "  ".join(header))
+        for i in order:
+            print("  " + "  ".join(f"{v:.4g}" for v in table[i]))
+    return 0
+
+
+def cmd_reprojection(args):
+    if args.length < 1:
+        raise ToolError("reprojection: the segment length must be at least 1 frame")
+    data = load_npz(args.data)
+    k = np.asarray(data["K"], dtype=float)
+    trajs = [read_tum(p) for p in args.estimate]
+    res = reprojection_check(np.asarray(data["features"], dtype=float),
+                             np.asarray(data["time_stamps"], dtype=float).reshape(-1), k[0, 0], k[1, 1], k[0, 2],
+                             k[1, 2], float(data["b"]), np.asarray(data["cam_T_imu"], dtype=float),
+                             [(t.times, t.poses) for t in trajs], args.length, args.min_disparity)
+    m = res["median"]
+    if m.shape[0] == 0:
+        raise ToolError("reprojection: no segment with 8 tracks seen at both ends and paired with every estimate")
+    print(f"{m.shape[0]} segments of {args.length} frames")
+    for name, col in zip([t.name for t in trajs] + ["pixels' own fit"], m.T):
+        print(f"{name}: median track error {np.median(col):.2f} px (mean of segment medians {col.mean():.2f}), "
+              f"segments under 2 px {np.mean(col < 2.0):.3f}")
+    return 0
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)
     handlers = {"ate": cmd_ate, "plot": cmd_plot, "animate": cmd_animate, "deadreckon": cmd_deadreckon,
-                "consistency": cmd_consistency, "gt": cmd_gt}
+                "consistency": cmd_consistency, "gt": cmd_gt, "segments": cmd_segments,
+                "reprojection": cmd_reprojection}
     try:
         return handlers[args.command](args)
     except ToolError as exc:

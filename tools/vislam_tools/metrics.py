@@ -160,3 +160,111 @@ def consistency(est_poses, gt_positions, position_var):
         "sigma_rms_body": {ax: float(np.sqrt(np.mean(var[used, i]))) for i, ax in enumerate("xyz")},
     }
     return summary, e_body, sigma, nees, used
+
+
+def segment_differences(ref_poses, other_poses, length):
+    """Where two trajectories part: their relative motions over consecutive segments compared.
+
+    ref_poses, other_poses: (N, 4, 4) world-from-body poses, paired row by row. The trajectory is
+    cut into segments of `length` poses (the last may be shorter); for each, the motion
+    D = T_start^-1 T_end of both (in the body frame at the segment's start, so no alignment is
+    needed and an error made earlier does not count again) and their difference:
+    translation |t_other - t_ref| (m), rotation angle of R_ref^T R_other (rad), length ratio
+    |t_other| / |t_ref|. Returns a dict of arrays, one entry per segment: start, end (row
+    indices), ref_distance (m), ref_turn (rad), d_translation (m), d_rotation (rad), scale.
+    """
+    ref_poses = np.asarray(ref_poses, dtype=float)
+    other_poses = np.asarray(other_poses, dtype=float)
+    if ref_poses.shape != other_poses.shape or ref_poses.shape[0] < 2:
+        raise ToolError("segments: two paired trajectories of at least 2 poses each are needed")
+    if length < 1:
+        raise ToolError("segments: the segment length must be at least 1 pose")
+    n = ref_poses.shape[0]
+    starts = np.arange(0, n - 1, length)
+    ends = np.minimum(starts + length, n - 1)
+    out = {k: np.zeros(len(starts)) for k in ("ref_distance", "ref_turn", "d_translation", "d_rotation", "scale")}
+    for k, (a, b) in enumerate(zip(starts, ends)):
+        d_ref = np.linalg.solve(ref_poses[a], ref_poses[b])
+        d_other = np.linalg.solve(other_poses[a], other_poses[b])
+        dist = np.linalg.norm(d_ref[:3, 3])
+        out["ref_distance"][k] = dist
+        out["ref_turn"][k] = _rotation_angle(d_ref[:3, :3])
+        out["d_translation"][k] = np.linalg.norm(d_other[:3, 3] - d_ref[:3, 3])
+        out["d_rotation"][k] = _rotation_angle(d_ref[:3, :3].T @ d_other[:3, :3])
+        out["scale"][k] = np.linalg.norm(d_other[:3, 3]) / dist if dist > 0 else np.nan
+    out["start"], out["end"] = starts, ends
+    return out
+
+
+def _rotation_angle(r):
+    """Angle (rad) of a rotation matrix."""
+    return float(np.arccos(np.clip((np.trace(r) - 1.0) * 0.5, -1.0, 1.0)))
+
+
+def stale_sources(features):
+    """For each frame, the frame whose image it shows: a frame repeating the previous frame's pixels
+    exactly for every track the two share (a stale image, vislam's frames_repeated rule) shows
+    that frame's image. features: (4, M, N) of the seed datasets, -1 where a track is not seen."""
+    n = features.shape[2]
+    src = np.arange(n)
+    for j in range(1, n):
+        seen = (features[0, :, j] != -1) & (features[0, :, j - 1] != -1)
+        if seen.any() and np.array_equal(features[:, seen, j], features[:, seen, j - 1]):
+            src[j] = src[j - 1]
+    return src
+
+
+def reprojection_check(features, frame_times, fx, fy, cx, cy, baseline, cam_T_imu, trajectories, length=1,
+                       min_disparity=3.0):
+    """How well each trajectory's relative motion explains the stereo tracks, segment by segment.
+
+    For each segment of `length` frames (both ends moved to the frame whose image they show, see
+    stale_sources), the tracks seen at both ends with at least min_disparity px at the start are
+    triangulated there, moved by the trajectory's camera motion over the segment and projected
+    into the end's left and right images; a track's error is its largest pixel difference (u left,
+    v, u right). Also the pose fitted to the pixels alone (robust least squares, Huber at 2 px,
+    from the first trajectory's motion), the floor the tracks allow. trajectories: list of
+    (times, (N, 4, 4) world-from-IMU poses). Returns a dict: "start" (frame indices of the
+    segments checked), "median" (segments x (trajectories + 1)): each segment's median track error
+    (px), the last column the pixels' own fit.
+    """
+    from scipy.optimize import least_squares
+
+    from .geometry import se3_exp, se3_inv
+    imu_T_cam = se3_inv(cam_T_imu)
+    src = stale_sources(features)
+    pairs = []
+    for times, _ in trajectories:
+        e, g, _ = associate(times, frame_times, "time", 0.02)
+        pairs.append(dict(zip(g.tolist(), e.tolist())))
+
+    def project(c_T, X):
+        Y = X @ c_T[:3, :3].T + c_T[:3, 3]
+        return np.column_stack([fx * Y[:, 0] / Y[:, 2] + cx, fy * Y[:, 1] / Y[:, 2] + cy,
+                                fx * (Y[:, 0] - baseline) / Y[:, 2] + cx])
+
+    starts, medians = [], []
+    for a in range(0, features.shape[2] - length, length):
+        sa, sb = src[a], src[a + length]
+        if sa == sb or any(sa not in p or sb not in p for p in pairs):
+            continue
+        fa, fb = features[:, :, sa], features[:, :, sb]
+        disparity = fa[0] - fa[2]
+        use = (fa[0] != -1) & (fb[0] != -1) & (disparity >= min_disparity)
+        if use.sum() < 8:
+            continue
+        z = fx * baseline / disparity[use]
+        X = np.column_stack([(fa[0, use] - cx) * z / fx, ((fa[1, use] + fa[3, use]) / 2 - cy) * z / fy, z])
+        seen = np.column_stack([fb[0, use], (fb[1, use] + fb[3, use]) / 2, fb[2, use]])
+        row = []
+        for (_, poses), p in zip(trajectories, pairs):
+            c_T = se3_inv(poses[p[sb]] @ imu_T_cam) @ poses[p[sa]] @ imu_T_cam
+            row.append(np.median(np.abs(project(c_T, X) - seen).max(axis=1)))
+            if len(row) == 1:
+                guess = c_T
+        fit = least_squares(lambda x: (project(se3_exp(x) @ guess, X) - seen).ravel(), np.zeros(6),
+                            loss="huber", f_scale=2.0)
+        row.append(np.median(np.abs(project(se3_exp(fit.x) @ guess, X) - seen).max(axis=1)))
+        starts.append(a)
+        medians.append(row)
+    return {"start": np.array(starts, dtype=int), "median": np.array(medians).reshape(-1, len(trajectories) + 1)}
