@@ -14,7 +14,8 @@
 #   for the same utime (its --step-samples), recomputed here, and is below that latency; its
 #   stages (from the two programs' CLOCK_REALTIME stamps) cover every frame, add up to it, leave
 #   little unaccounted for (|other| p50 < 5 us) and none is negative (beyond the 1 us of the
-#   kernel's stamps). Then one pass each through liblcm's receive thread (--lcm-receive-thread)
+#   kernel's stamps); the overhead less its queued stage covers every frame, below the overhead.
+#   Then one pass each through liblcm's receive thread (--lcm-receive-thread)
 #   and busy-polling (--busy-poll-us): every pose back, stages for every frame.
 # No -e: every check runs and is reported; the exit status counts the failed ones.
 set -uo pipefail
@@ -85,8 +86,10 @@ print("stages_n", 0 if st is None else min(s["n"] for s in st.values()))
 sums = [sum(v[i] for v in per.values()) for i in range(len(per["other"]))]
 print("stages_add_up", int(len(sums) == len(got) > 0 and all(abs(a - b) < 0.01 for a, b in zip(sums, got))))
 print("stages_other_small", int(st is not None and abs(st["other"]["p50"]) < 5.0))
-timed = ["send", "queued", "wake", "decode", "return", "replay_wake"]
+timed = ["send", "queued_wake", "queued_step", "queued_publish", "wake", "decode", "return", "replay_wake"]
 print("stages_not_negative", int(st is not None and all(st[k]["min"] >= -1.0 for k in timed)))
+tr = d["lcm_transport_us"]
+print("transport_ok", int(tr is not None and tr["n"] == lcm["n"] and tr["p50"] <= lcm["p50"] and tr["max"] <= lcm["max"]))
 PY
 }
 
@@ -125,6 +128,7 @@ if [ "$MODE" = e2e ]; then
   check "LCM overhead stages: what they leave out is small (|other| p50 < 5 us)" \
     eq "$(value "$OUT/facts" stages_other_small)" 1
   check "LCM overhead stages: none negative" eq "$(value "$OUT/facts" stages_not_negative)" 1
+  check "LCM overhead less queued: every frame, below the overhead" eq "$(value "$OUT/facts" transport_ok)" 1
   for variant in --lcm-receive-thread "--busy-poll-us 2000"; do
     # shellcheck disable=SC2086 # the variant is an option and its value
     "$BIN/vislam-latency" "$LOG" --rate max --passes 1 --no-probe --lcm-url "$URL" $variant --json "$OUT/v.json" \

@@ -626,19 +626,22 @@ static long long json_int(const char *path, const char *key)
  * less the step and the stages: clock reads, and the monotonic against the real-time clock).
  */
 enum {
-    STAGE_SEND,        /* replay's lcm_publish called -> kernel receive stamp on vislamd's socket */
-    STAGE_QUEUED,      /* -> vislamd done with its earlier inputs (the IMU sample of the same instant) */
-    STAGE_WAKE,        /* -> its handler called: LCM's receive thread, its pipe, the main thread's wake-up */
-    STAGE_DECODE,      /* -> vl_session_input called */
-    STAGE_PUBLISH,     /* the step's end -> its VISLAM_POSE encoded and lcm_publish called */
-    STAGE_RETURN,      /* -> kernel receive stamp on the replay's socket */
-    STAGE_REPLAY_WAKE, /* -> the replay's pose handler called (its receive thread, pipe, main thread) */
+    STAGE_SEND, /* replay's lcm_publish called -> kernel receive stamp on vislamd's socket */
+    /* -> vislamd done with the input before it (the IMU sample of the same instant), in three: */
+    STAGE_QUEUED_WAKE,    /* until it started on that input (woke up for it, or inputs before) */
+    STAGE_QUEUED_STEP,    /* that input's decode and step */
+    STAGE_QUEUED_PUBLISH, /* publishing that input's poses */
+    STAGE_WAKE,           /* -> its handler called: LCM's receive thread, its pipe, the main thread's wake-up */
+    STAGE_DECODE,         /* -> vl_session_input called */
+    STAGE_PUBLISH,        /* the step's end -> its VISLAM_POSE encoded and lcm_publish called */
+    STAGE_RETURN,         /* -> kernel receive stamp on the replay's socket */
+    STAGE_REPLAY_WAKE,    /* -> the replay's pose handler called (its receive thread, pipe, main thread) */
     STAGE_OTHER,
     STAGE_COUNT
 };
 
-static const char *const stage_name[STAGE_COUNT] = {"send",    "queued", "wake",        "decode",
-                                                    "publish", "return", "replay_wake", "other"};
+static const char *const stage_name[STAGE_COUNT] = {"send",   "queued_wake", "queued_step", "queued_publish", "wake",
+                                                    "decode", "publish",     "return",      "replay_wake",    "other"};
 
 typedef struct {
     double *us;                    /* per frame answered, in order: frame published to pose received, us */
@@ -714,7 +717,13 @@ static int read_samples(const char *path, e2e_t *e)
 typedef struct {
     int64_t utime, ns;
     int64_t rx, free, handler, step, sent;
+    int64_t prev_handler, prev_sink;
 } daemon_sample_t;
+
+static int64_t clamp64(int64_t v, int64_t lo, int64_t hi)
+{
+    return v < lo ? lo : (v > hi ? hi : v);
+}
 
 /* Frame i's stages from its stamps and the daemon's sample d, into e->stage_us; nothing when a
    stamp is missing. */
@@ -725,8 +734,15 @@ static void add_stages(e2e_t *e, size_t i, const daemon_sample_t *d)
         return;
     }
     const int64_t ready = d->free > d->rx ? d->free : d->rx; /* the daemon could take the frame */
+    /* The wait behind the previous input: before the daemon started on it, then its step, then
+       its publishing (the end of its handling). */
+    const int64_t queued = ready - d->rx;
+    const int64_t q_wake = clamp64(d->prev_handler - d->rx, 0, queued);
+    const int64_t q_publish = clamp64(d->prev_sink, 0, queued - q_wake);
     const double ns[STAGE_COUNT - 1] = {(double)(d->rx - pub),
-                                        (double)(ready - d->rx),
+                                        (double)q_wake,
+                                        (double)(queued - q_wake - q_publish),
+                                        (double)q_publish,
                                         (double)(d->handler - ready),
                                         (double)(d->step - d->handler),
                                         (double)(d->sent - d->step - d->ns),
@@ -754,8 +770,9 @@ static void pair_steps(const char *path, e2e_t *e, size_t from)
     FILE *f = fopen(path, "r");
     char line[256];
     while (f != NULL && fgets(line, sizeof(line), f) != NULL) {
-        long long v[7] = {0, 0, 0, 0, 0, 0, 0};
-        if (sscanf(line, "%lld %lld %lld %lld %lld %lld %lld", &v[0], &v[1], &v[2], &v[3], &v[4], &v[5], &v[6]) < 2) {
+        long long v[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+        if (sscanf(line, "%lld %lld %lld %lld %lld %lld %lld %lld %lld", &v[0], &v[1], &v[2], &v[3], &v[4], &v[5],
+                   &v[6], &v[7], &v[8]) < 2) {
             continue;
         }
         if (m == cap) {
@@ -764,7 +781,7 @@ static void pair_steps(const char *path, e2e_t *e, size_t from)
                 break;
             }
         }
-        const daemon_sample_t s = {v[0], v[1], v[2], v[3], v[4], v[5], v[6]};
+        const daemon_sample_t s = {v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]};
         ds[m++] = s;
     }
     if (f != NULL) {
@@ -1045,6 +1062,7 @@ static int run_plot(const char *json, const char *png)
 typedef struct {
     summary_t step, prop, e2e, lcm, jitter_cpu[VL_JITTER_MAX_CPUS];
     summary_t stage[STAGE_COUNT]; /* the LCM overhead's stages */
+    summary_t transport;          /* the LCM overhead less its queued stages: LCM's and the OS's own share */
     double jitter_max, jitter_p99;
     int jitter_cpus;
     uint64_t jitter_samples;
@@ -1109,6 +1127,7 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
     json_summary(f, "lcm_overhead_us", opt.e2e ? &res->lcm : NULL, ",");
     fprintf(f, "  \"e2e_frames\": {\"expected\": %lld, \"returned\": %lld, \"paired\": %zu},\n", e->expected,
             e->returned, e->n_overhead);
+    json_summary(f, "lcm_transport_us", opt.e2e ? &res->transport : NULL, ",");
     if (!opt.e2e || e->n_stages == 0) {
         fprintf(f, "  \"lcm_stages_us\": null,\n");
     } else {
@@ -1354,6 +1373,14 @@ int main(int argc, char **argv)
         memcpy(stage_sorted, e2e.stage_us[k], e2e.n_stages * sizeof(double));
         res.stage[k] = summarize(stage_sorted, e2e.n_stages);
     }
+    for (size_t j = 0; j < e2e.n_stages && stage_sorted != NULL; ++j) {
+        stage_sorted[j] = 0.0;
+        for (int k = 0; k < STAGE_COUNT; ++k) {
+            const int queued = k == STAGE_QUEUED_WAKE || k == STAGE_QUEUED_STEP || k == STAGE_QUEUED_PUBLISH;
+            stage_sorted[j] += queued ? 0.0 : e2e.stage_us[k][j];
+        }
+    }
+    res.transport = summarize(stage_sorted, stage_sorted != NULL ? e2e.n_stages : 0);
     free(stage_sorted);
     const summary_t w = summarize(work, nsteps);
     res.work_p50 = w.p50;
@@ -1385,6 +1412,9 @@ int main(int argc, char **argv)
             char label[48];
             snprintf(label, sizeof(label), "  stage %s", stage_name[k]);
             print_summary(label, &res.stage[k]);
+        }
+        if (res.transport.n > 0) {
+            print_summary("LCM overhead less queued", &res.transport);
         }
         fprintf(stderr, "  end to end: %lld of %lld poses came back\n", e2e.returned, e2e.expected);
         if (e2e.unpaired > 0) {

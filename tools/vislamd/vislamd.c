@@ -71,11 +71,11 @@
 #define INTERVAL_WINDOW 32 /* IMU intervals the automatic budget takes the median of */
 #define STACK_PREFAULT_BYTES (256 * 1024)
 #define DRAIN_MAX 1000     /* messages already queued that are still processed at shutdown */
-#define LCM_ERRORS_MAX 100 /* consecutive lcm_handle failures before giving up */
+#define LCM_ERRORS_MAX 100 /* consecutive receive failures (lcm_handle or the socket) before giving up */
 #define RX_BATCH 64        /* datagrams one wake-up of the direct receiver reads at most */
 #define BUSY_POLL_MAX_US 1000000
 #define ENCODE_BUF 1024
-#define STEP_SAMPLES_MAX 65536 /* --step-samples: frames kept (1 MiB; 1.8 h at 10 Hz), later ones counted */
+#define STEP_SAMPLES_MAX 65536 /* --step-samples: frames kept (3.5 MiB; 1.8 h at 10 Hz), later ones counted */
 #define STEP_SAMPLES_BUF 65536 /* its stdio buffer, given at start-up so that writing it does not allocate */
 
 typedef struct {
@@ -116,6 +116,8 @@ typedef struct {
     int64_t handler_ns; /**< LCM called the frame's handler, ns */
     int64_t step_ns;    /**< decoded: vl_session_input called, ns */
     int64_t sent_ns;    /**< its VISLAM_POSE encoded, lcm_publish called (0: none published), ns */
+    int64_t prev_handler_ns; /**< the previous input's handler called, ns */
+    int64_t prev_sink_ns;    /**< the previous input's publishing (its sink_ns), CLOCK_MONOTONIC ns */
 } step_sample_t;
 
 /* The daemon's own counts; the inputs' are the session's (vl_session_counters). */
@@ -165,6 +167,8 @@ typedef struct {
     uint64_t overruns_at_status; /* "since the last status" for BUDGET_OVERRUN */
     int64_t sink_ns;             /* time publishing (poses, statuses) during the current step, ns */
     int64_t free_ns;             /* CLOCK_REALTIME at the end of the last input handled, ns */
+    int64_t last_handler_ns;     /* CLOCK_REALTIME when the last input's handler was called, ns */
+    int64_t last_sink_ns;        /* the last input's sink_ns */
     int64_t pose_sent_ns;        /* CLOCK_REALTIME when the current step's VISLAM_POSE went to lcm_publish, ns */
     step_sample_t *step_samples; /* --step-samples: STEP_SAMPLES_MAX, allocated at start-up */
     size_t num_step_samples;
@@ -205,7 +209,8 @@ static void usage(FILE *f)
             "  --step-samples FILE     at exit, one line per frame stepped: its utime (us), the step's\n"
             "                          time (ns: vl_session_input less what it publishes), then CLOCK_REALTIME\n"
             "                          ns: kernel receive, previous input done, handler called, step\n"
-            "                          started, pose published; kept in memory for the first %d frames\n"
+            "                          started, pose published, previous input's handler called, and its\n"
+            "                          publishing (ns); kept in memory for the first %d frames\n"
             "                          (vislam-latency's LCM overhead and its stages)\n"
             "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
             "                          of the last %d IMU intervals; %d us until known)\n"
@@ -565,7 +570,7 @@ static void notify_status(daemon_t *d)
 
 /*
  * WATCHDOG=1 every half watchdog period, sent from the loop that steps the estimator and only
- * while it is healthy (LCM's last lcm_handle succeeded): a step that hangs, or a receive side
+ * while it is healthy (the last read of its inputs succeeded): a step that hangs, or a receive side
  * that keeps failing, stops the pings and systemd restarts the daemon. Budget overruns do not
  * count: a slow step is reported in the status, a stuck one is what the watchdog is for.
  */
@@ -596,6 +601,8 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
     step_sample_t sample;
     sample.handler_ns = vl_clock_realtime_ns();
     sample.free_ns = d->free_ns;
+    sample.prev_handler_ns = d->last_handler_ns;
+    sample.prev_sink_ns = d->last_sink_ns;
     sample.rx_ns = rbuf->recv_utime * 1000;
     const int64_t t0 = vl_clock_monotonic_us();
     vl_log_event_t *ev = &d->ev;
@@ -611,6 +618,8 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
     const int64_t s0 = vl_clock_monotonic_ns();
     const vl_session_step_t step = vl_session_input(&d->session, ev, &status);
     const int64_t step_ns = vl_clock_monotonic_ns() - s0 - d->sink_ns;
+    d->last_handler_ns = sample.handler_ns;
+    d->last_sink_ns = d->sink_ns;
     if (step == VL_SESSION_STEP_NONE) {
         d->free_ns = vl_clock_realtime_ns();
         return;
@@ -877,8 +886,11 @@ static int write_step_samples(daemon_t *d)
     FILE *f = d->step_samples_file;
     for (size_t i = 0; i < d->num_step_samples; ++i) {
         const step_sample_t *s = &d->step_samples[i];
-        fprintf(f, "%" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 "\n", s->utime,
-                s->ns, s->rx_ns, s->free_ns, s->handler_ns, s->step_ns, s->sent_ns);
+        fprintf(f,
+                "%" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64
+                " %" PRId64 "\n",
+                s->utime, s->ns, s->rx_ns, s->free_ns, s->handler_ns, s->step_ns, s->sent_ns, s->prev_handler_ns,
+                s->prev_sink_ns);
     }
     if (d->step_samples_dropped > 0) {
         fprintf(stderr, "vislamd: %s: the first %d frames kept, %" PRIu64 " later ones not\n", d->opt.step_samples_path,
@@ -1069,7 +1081,7 @@ int main(int argc, char **argv)
         if (r > 0) {
             if (receive(d) != 0) {
                 if (++lcm_errors >= LCM_ERRORS_MAX) {
-                    fprintf(stderr, "vislamd: lcm_handle failed %d times in a row; stopping\n", lcm_errors);
+                    fprintf(stderr, "vislamd: receiving from LCM failed %d times in a row; stopping\n", lcm_errors);
                     exit_code = EXIT_RUNTIME;
                     break;
                 }
