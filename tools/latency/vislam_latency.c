@@ -631,11 +631,11 @@ enum {
     STAGE_QUEUED_WAKE,    /* until it started on that input (woke up for it, or inputs before) */
     STAGE_QUEUED_STEP,    /* that input's decode and step */
     STAGE_QUEUED_PUBLISH, /* publishing that input's poses */
-    STAGE_WAKE,           /* -> its handler called: LCM's receive thread, its pipe, the main thread's wake-up */
+    STAGE_WAKE,           /* -> its handler called (the wake-up; through liblcm's thread, also its pipe) */
     STAGE_DECODE,         /* -> vl_session_input called */
     STAGE_PUBLISH,        /* the step's end -> its VISLAM_POSE encoded and lcm_publish called */
     STAGE_RETURN,         /* -> kernel receive stamp on the replay's socket */
-    STAGE_REPLAY_WAKE,    /* -> the replay's pose handler called (its receive thread, pipe, main thread) */
+    STAGE_REPLAY_WAKE,    /* -> the replay's pose handler called (its wake-up) */
     STAGE_OTHER,
     STAGE_COUNT
 };
