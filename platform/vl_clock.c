@@ -19,18 +19,28 @@ int64_t vl_clock_monotonic_us(void)
     return read_us(CLOCK_MONOTONIC);
 }
 
-int64_t vl_clock_monotonic_ns(void)
+static int64_t read_ns(clockid_t id)
 {
     struct timespec ts;
-    if (clock_gettime(CLOCK_MONOTONIC, &ts) != 0) {
+    if (clock_gettime(id, &ts) != 0) {
         return 0;
     }
     return (int64_t)ts.tv_sec * 1000000000 + (int64_t)ts.tv_nsec;
 }
 
+int64_t vl_clock_monotonic_ns(void)
+{
+    return read_ns(CLOCK_MONOTONIC);
+}
+
 int64_t vl_clock_realtime_us(void)
 {
     return read_us(CLOCK_REALTIME);
+}
+
+int64_t vl_clock_realtime_ns(void)
+{
+    return read_ns(CLOCK_REALTIME);
 }
 
 int vl_clock_sleep_until_us(int64_t deadline_us)

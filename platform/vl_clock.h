@@ -24,6 +24,13 @@ int64_t vl_clock_monotonic_ns(void);
 int64_t vl_clock_realtime_us(void);
 
 /**
+ * CLOCK_REALTIME in nanoseconds since the Unix epoch: for stamps compared across processes on one
+ * host and with the kernel's socket receive stamps (SO_TIMESTAMP, which LCM hands over as
+ * lcm_recv_buf_t::recv_utime), never for durations within one process.
+ */
+int64_t vl_clock_realtime_ns(void);
+
+/**
  * Sleeps until CLOCK_MONOTONIC reaches @p deadline_us (clock_nanosleep with
  * TIMER_ABSTIME, so repeated sleeps to a schedule do not accumulate drift).
  * @return 0 when the deadline passed (also when it was already past), or -1

@@ -11,7 +11,12 @@
 #   when unshare --net is not permitted): every frame's pose came back, one sample per step; the
 #   LCM overhead has one sample per frame, 0 <= min <= p50 <= p99 <= max, and each frame's equals
 #   its end-to-end latency (the replay's --latency-samples, kept in --work-dir) less vislamd's step
-#   for the same utime (its --step-samples), recomputed here, and is below that latency.
+#   for the same utime (its --step-samples), recomputed here, and is below that latency; its
+#   stages (from the two programs' CLOCK_REALTIME stamps) cover every frame, add up to it, leave
+#   little unaccounted for (|other| p50 < 5 us) and none is negative (beyond the 1 us of the
+#   kernel's stamps); the overhead less its queued stage covers every frame, below the overhead.
+#   Then one pass each through liblcm's receive thread (--lcm-receive-thread)
+#   and busy-polling (--busy-poll-us): every pose back, stages for every frame.
 # No -e: every check runs and is reported; the exit status counts the failed ones.
 set -uo pipefail
 
@@ -66,15 +71,25 @@ for k in range(int(sys.argv[3])):
     e2e = os.path.join(work, f"e2e_{k}.txt")
     if not os.path.exists(e2e):
         continue
-    steps = dict(tuple(map(int, l.split())) for l in open(os.path.join(work, f"steps_{k}.txt")))
+    steps = dict(tuple(map(int, l.split()[:2])) for l in open(os.path.join(work, f"steps_{k}.txt")))
     for line in open(e2e):
-        lat, utime = map(int, line.split())
+        lat, utime = map(int, line.split()[:2])
         lats.append(lat)
         expect.append(lat - steps[utime] / 1000.0)
 got = d["samples"]["lcm_overhead_us"]
 same = len(got) == len(expect) > 0
 print("lcm_per_frame", int(same and all(abs(a - b) < 0.01 for a, b in zip(got, expect))))
 print("lcm_below_e2e", int(same and all(a < b for a, b in zip(got, lats))))
+st = d["lcm_stages_us"]
+per = d["samples"]["lcm_stages_us"]
+print("stages_n", 0 if st is None else min(s["n"] for s in st.values()))
+sums = [sum(v[i] for v in per.values()) for i in range(len(per["other"]))]
+print("stages_add_up", int(len(sums) == len(got) > 0 and all(abs(a - b) < 0.01 for a, b in zip(sums, got))))
+print("stages_other_small", int(st is not None and abs(st["other"]["p50"]) < 5.0))
+timed = ["send", "queued_wake", "queued_step", "queued_publish", "wake", "decode", "return", "replay_wake"]
+print("stages_not_negative", int(st is not None and all(st[k]["min"] >= -1.0 for k in timed)))
+tr = d["lcm_transport_us"]
+print("transport_ok", int(tr is not None and tr["n"] == lcm["n"] and tr["p50"] <= lcm["p50"] and tr["max"] <= lcm["max"]))
 PY
 }
 
@@ -108,6 +123,20 @@ if [ "$MODE" = e2e ]; then
   check "LCM overhead: 0 <= min <= p50 <= p99 <= max" eq "$(value "$OUT/facts" lcm_ordered)" 1
   check "LCM overhead per frame = end to end - vislamd's step (its utime)" eq "$(value "$OUT/facts" lcm_per_frame)" 1
   check "LCM overhead below the end-to-end latency, every frame" eq "$(value "$OUT/facts" lcm_below_e2e)" 1
+  check "LCM overhead stages for every frame" eq "$(value "$OUT/facts" stages_n)" "$expected"
+  check "LCM overhead stages add up to each frame's overhead" eq "$(value "$OUT/facts" stages_add_up)" 1
+  check "LCM overhead stages: what they leave out is small (|other| p50 < 5 us)" \
+    eq "$(value "$OUT/facts" stages_other_small)" 1
+  check "LCM overhead stages: none negative" eq "$(value "$OUT/facts" stages_not_negative)" 1
+  check "LCM overhead less queued: every frame, below the overhead" eq "$(value "$OUT/facts" transport_ok)" 1
+  for variant in --lcm-receive-thread "--busy-poll-us 2000"; do
+    # shellcheck disable=SC2086 # the variant is an option and its value
+    "$BIN/vislam-latency" "$LOG" --rate max --passes 1 --no-probe --lcm-url "$URL" $variant --json "$OUT/v.json" \
+      --work-dir "$OUT/work_v" --quiet 2>"$OUT/stderr_v" || cat "$OUT/stderr_v"
+    PASSES=1 facts "$OUT/v.json" "$OUT/work_v" >"$OUT/facts_v" || echo "FAIL: the JSON does not parse"
+    check "$variant: every pose came back" eq "$(value "$OUT/facts_v" e2e_returned)" "$frames"
+    check "$variant: LCM overhead stages for every frame" eq "$(value "$OUT/facts_v" stages_n)" "$frames"
+  done
 else
   check "no end-to-end figures without vislamd" eq "$(value "$OUT/facts" e2e_samples)" 0
   check "no LCM overhead without vislamd" eq "$(value "$OUT/facts" lcm_samples)" 0

@@ -72,6 +72,8 @@ typedef struct {
     int probe;
     long budget_us;
     long timeout_ms;
+    const char *busy_poll_us; /* end to end: vislamd's and the replay's --busy-poll-us, as given */
+    int lcm_receive_thread;   /* end to end: both receive through liblcm's thread */
     int quiet;
 } options_t;
 
@@ -111,6 +113,10 @@ static void usage(FILE *f)
                "  --lcm-url URL       LCM provider of the end-to-end pass (default: $LCM_DEFAULT_URL, else\n"
                "                      LCM's default); udpm needs a multicast route (see the README)\n"
                "  --timeout-ms N      end to end: how long to wait for a pose (default 2000)\n"
+               "  --busy-poll-us N    end to end: vislamd and the replay spin on their sockets up to N us for\n"
+               "                      the next message before sleeping (their --busy-poll-us)\n"
+               "  --lcm-receive-thread  end to end: both receive through liblcm's receive thread (their\n"
+               "                      --lcm-receive-thread), not on the socket in their own loop\n"
                "  --config FILE       INI configuration (the estimator's and vislamd's)\n"
                "  --budget-us N       step budget for the overrun count (default: the log's frame period)\n"
                "  --cyclictest        also run cyclictest (if installed) on every CPU while measuring\n"
@@ -174,6 +180,8 @@ static int parse_args(int argc, char **argv, options_t *o)
             o->cyclictest = 1;
         } else if (strcmp(a, "--no-probe") == 0) {
             o->probe = 0;
+        } else if (strcmp(a, "--lcm-receive-thread") == 0) {
+            o->lcm_receive_thread = 1;
         } else if (strcmp(a, "--quiet") == 0) {
             o->quiet = 1;
         } else if (a[0] != '-' || a[1] == '\0') {
@@ -218,6 +226,11 @@ static int parse_args(int argc, char **argv, options_t *o)
                 }
             } else if (strcmp(a, "--lcm-url") == 0) {
                 o->lcm_url = v;
+            } else if (strcmp(a, "--busy-poll-us") == 0) {
+                if (parse_long(a, v, 0, 1000000L, &n) != 0) {
+                    return -1;
+                }
+                o->busy_poll_us = v;
             } else if (strcmp(a, "--config") == 0) {
                 o->config_path = v;
             } else if (strcmp(a, "--json") == 0) {
@@ -302,25 +315,36 @@ static void print_summary(const char *label, const summary_t *s)
             s->p50, s->p99, s->p999, s->max);
 }
 
-static void json_summary(FILE *f, const char *key, const summary_t *s, const char *tail)
+/* "key": {summary} or null, on a line of its own after indent. */
+static void json_summary_at(FILE *f, const char *indent, const char *key, const summary_t *s, const char *tail)
 {
     if (s == NULL || s->n == 0) {
-        fprintf(f, "  \"%s\": null%s\n", key, tail);
+        fprintf(f, "%s\"%s\": null%s\n", indent, key, tail);
         return;
     }
     fprintf(f,
-            "  \"%s\": {\"n\": %zu, \"min\": %.3f, \"p50\": %.3f, \"p99\": %.3f, \"p999\": %.3f, \"max\": %.3f, "
+            "%s\"%s\": {\"n\": %zu, \"min\": %.3f, \"p50\": %.3f, \"p99\": %.3f, \"p999\": %.3f, \"max\": %.3f, "
             "\"mean\": %.3f}%s\n",
-            key, s->n, s->min, s->p50, s->p99, s->p999, s->max, s->mean, tail);
+            indent, key, s->n, s->min, s->p50, s->p99, s->p999, s->max, s->mean, tail);
 }
 
-static void json_array(FILE *f, const char *key, const double *v, size_t n, const char *tail)
+static void json_summary(FILE *f, const char *key, const summary_t *s, const char *tail)
 {
-    fprintf(f, "    \"%s\": [", key);
+    json_summary_at(f, "  ", key, s, tail);
+}
+
+static void json_array_at(FILE *f, const char *indent, const char *key, const double *v, size_t n, const char *tail)
+{
+    fprintf(f, "%s\"%s\": [", indent, key);
     for (size_t i = 0; i < n; ++i) {
         fprintf(f, "%s%.3f", i == 0 ? "" : ",", v[i]);
     }
     fprintf(f, "]%s\n", tail);
+}
+
+static void json_array(FILE *f, const char *key, const double *v, size_t n, const char *tail)
+{
+    json_array_at(f, "    ", key, v, n, tail);
 }
 
 /* ---- the log ---- */
@@ -595,15 +619,52 @@ static long long json_int(const char *path, const char *key)
 
 /* ---- the end-to-end pass ---- */
 
+/*
+ * Where a frame's LCM overhead goes, from CLOCK_REALTIME stamps the replay and vislamd take of the
+ * same frame (one host, one clock; the kernel's receive stamps have microsecond resolution). Each
+ * stage ends where the next begins, and "other" is what the stamps do not account for (end to end
+ * less the step and the stages: clock reads, and the monotonic against the real-time clock).
+ */
+enum {
+    STAGE_SEND, /* replay's lcm_publish called -> kernel receive stamp on vislamd's socket */
+    /* -> vislamd done with the input before it (the IMU sample of the same instant), in three: */
+    STAGE_QUEUED_WAKE,    /* until it started on that input (woke up for it, or inputs before) */
+    STAGE_QUEUED_STEP,    /* that input's decode and step */
+    STAGE_QUEUED_PUBLISH, /* publishing that input's poses */
+    STAGE_WAKE,           /* -> its handler called (the wake-up; through liblcm's thread, also its pipe) */
+    STAGE_DECODE,         /* -> vl_session_input called */
+    STAGE_PUBLISH,        /* the step's end -> its VISLAM_POSE encoded and lcm_publish called */
+    STAGE_RETURN,         /* -> kernel receive stamp on the replay's socket */
+    STAGE_REPLAY_WAKE,    /* -> the replay's pose handler called (its wake-up) */
+    STAGE_OTHER,
+    STAGE_COUNT
+};
+
+static const char *const stage_name[STAGE_COUNT] = {"send",   "queued_wake", "queued_step", "queued_publish", "wake",
+                                                    "decode", "publish",     "return",      "replay_wake",    "other"};
+
 typedef struct {
-    double *us;          /* per frame answered, in order: frame published to pose received, us */
-    int64_t *utime;      /* its frame's utime, us */
-    double *overhead_us; /* us minus vislamd's step for the same frame (LCM's share), in order */
-    size_t n, n_overhead, cap;
+    double *us;                    /* per frame answered, in order: frame published to pose received, us */
+    int64_t *utime;                /* its frame's utime, us */
+    int64_t *stamp[3];             /* the replay's CLOCK_REALTIME ns: published, pose received (kernel), handled */
+    double *overhead_us;           /* us minus vislamd's step for the same frame (LCM's share), in order */
+    double *stage_us[STAGE_COUNT]; /* per frame paired with full stamps, in order */
+    size_t n, n_overhead, n_stages, cap;
     long long expected, returned;
     long long unpaired; /* frames answered that vislamd's step samples do not hold */
     int failed;         /* a helper failed */
 } e2e_t;
+
+/* Grows *p to cap elements of size bytes; 0, or -1 (and *p kept) when out of memory. */
+static int grow(void **p, size_t cap, size_t size)
+{
+    void *q = realloc(*p, cap * size);
+    if (q == NULL) {
+        return -1;
+    }
+    *p = q;
+    return 0;
+}
 
 /* Room for one more frame in every array of e; -1 when out of memory. */
 static int e2e_reserve(e2e_t *e)
@@ -612,61 +673,116 @@ static int e2e_reserve(e2e_t *e)
         return 0;
     }
     const size_t cap = e->cap ? 2 * e->cap : 4096;
-    double *us = (double *)realloc(e->us, cap * sizeof(double));
-    e->us = us != NULL ? us : e->us;
-    int64_t *ut = (int64_t *)realloc(e->utime, cap * sizeof(int64_t));
-    e->utime = ut != NULL ? ut : e->utime;
-    double *ov = (double *)realloc(e->overhead_us, cap * sizeof(double));
-    e->overhead_us = ov != NULL ? ov : e->overhead_us;
-    if (us == NULL || ut == NULL || ov == NULL) {
+    int bad = grow((void **)&e->us, cap, sizeof(double)) | grow((void **)&e->utime, cap, sizeof(int64_t)) |
+              grow((void **)&e->overhead_us, cap, sizeof(double));
+    for (int k = 0; k < 3; ++k) {
+        bad |= grow((void **)&e->stamp[k], cap, sizeof(int64_t));
+    }
+    for (int k = 0; k < STAGE_COUNT; ++k) {
+        bad |= grow((void **)&e->stage_us[k], cap, sizeof(double));
+    }
+    if (bad) {
         return -1;
     }
     e->cap = cap;
     return 0;
 }
 
-/* Appends the replay's --latency-samples (a line per frame: latency us, utime us). */
+/* Appends the replay's --latency-samples (a line per frame: latency us, utime us, then its three
+   stamps, ns; a line without them leaves them 0). */
 static int read_samples(const char *path, e2e_t *e)
 {
     FILE *f = fopen(path, "r");
     if (f == NULL) {
         return -1;
     }
-    long long v, utime;
-    while (fscanf(f, "%lld %lld", &v, &utime) == 2 && e2e_reserve(e) == 0) {
+    char line[256];
+    while (fgets(line, sizeof(line), f) != NULL && e2e_reserve(e) == 0) {
+        long long v, utime, t[3] = {0, 0, 0};
+        if (sscanf(line, "%lld %lld %lld %lld %lld", &v, &utime, &t[0], &t[1], &t[2]) < 2) {
+            continue;
+        }
         e->us[e->n] = (double)v;
         e->utime[e->n] = (int64_t)utime;
+        for (int k = 0; k < 3; ++k) {
+            e->stamp[k][e->n] = (int64_t)t[k];
+        }
         e->n++;
     }
     fclose(f);
     return 0;
 }
 
+/* One line of vislamd's --step-samples: utime us, step ns, then its stamps (ns, 0 when absent). */
+typedef struct {
+    int64_t utime, ns;
+    int64_t rx, free, handler, step, sent;
+    int64_t prev_handler, prev_sink;
+} daemon_sample_t;
+
+static int64_t clamp64(int64_t v, int64_t lo, int64_t hi)
+{
+    return v < lo ? lo : (v > hi ? hi : v);
+}
+
+/* Frame i's stages from its stamps and the daemon's sample d, into e->stage_us; nothing when a
+   stamp is missing. */
+static void add_stages(e2e_t *e, size_t i, const daemon_sample_t *d)
+{
+    const int64_t pub = e->stamp[0][i], rx = e->stamp[1][i], handled = e->stamp[2][i];
+    if (pub <= 0 || rx <= 0 || handled <= 0 || d->rx <= 0 || d->handler <= 0 || d->step <= 0 || d->sent <= 0) {
+        return;
+    }
+    const int64_t ready = d->free > d->rx ? d->free : d->rx; /* the daemon could take the frame */
+    /* The wait behind the previous input: before the daemon started on it, then its step, then
+       its publishing (the end of its handling). */
+    const int64_t queued = ready - d->rx;
+    const int64_t q_wake = clamp64(d->prev_handler - d->rx, 0, queued);
+    const int64_t q_publish = clamp64(d->prev_sink, 0, queued - q_wake);
+    const double ns[STAGE_COUNT - 1] = {(double)(d->rx - pub),
+                                        (double)q_wake,
+                                        (double)(queued - q_wake - q_publish),
+                                        (double)q_publish,
+                                        (double)(d->handler - ready),
+                                        (double)(d->step - d->handler),
+                                        (double)(d->sent - d->step - d->ns),
+                                        (double)(rx - d->sent),
+                                        (double)(handled - rx)};
+    const size_t j = e->n_stages++;
+    double sum = 0.0;
+    for (int k = 0; k < STAGE_COUNT - 1; ++k) {
+        e->stage_us[k][j] = ns[k] * 1e-3;
+        sum += ns[k] * 1e-3;
+    }
+    e->stage_us[STAGE_OTHER][j] = e->us[i] - (double)d->ns * 1e-3 - sum;
+}
+
 /*
  * Pairs the frames e[from..n) with vislamd's --step-samples (a line per frame it stepped, in its
- * order: utime us, step ns) by utime, in order (a utime repeated by a new timeline pairs with the
- * next step of that utime), and appends each frame's end to end minus step to e->overhead_us.
+ * order: utime us, step ns, stamps) by utime, in order (a utime repeated by a new timeline pairs
+ * with the next step of that utime), and appends each frame's end to end minus step to
+ * e->overhead_us, and its stages to e->stage_us.
  */
 static void pair_steps(const char *path, e2e_t *e, size_t from)
 {
     size_t m = 0, cap = 0;
-    int64_t *utime = NULL, *ns = NULL;
+    daemon_sample_t *ds = NULL;
     FILE *f = fopen(path, "r");
-    long long u, t;
-    while (f != NULL && fscanf(f, "%lld %lld", &u, &t) == 2) {
+    char line[256];
+    while (f != NULL && fgets(line, sizeof(line), f) != NULL) {
+        long long v[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+        if (sscanf(line, "%lld %lld %lld %lld %lld %lld %lld %lld %lld", &v[0], &v[1], &v[2], &v[3], &v[4], &v[5],
+                   &v[6], &v[7], &v[8]) < 2) {
+            continue;
+        }
         if (m == cap) {
             cap = cap ? 2 * cap : 4096;
-            int64_t *pu = (int64_t *)realloc(utime, cap * sizeof(int64_t));
-            utime = pu != NULL ? pu : utime;
-            int64_t *pn = (int64_t *)realloc(ns, cap * sizeof(int64_t));
-            ns = pn != NULL ? pn : ns;
-            if (pu == NULL || pn == NULL) {
+            if (grow((void **)&ds, cap, sizeof(*ds)) != 0) {
                 break;
             }
         }
-        utime[m] = (int64_t)u;
-        ns[m] = (int64_t)t;
-        m++;
+        const daemon_sample_t s = {v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]};
+        ds[m++] = s;
     }
     if (f != NULL) {
         fclose(f);
@@ -674,18 +790,18 @@ static void pair_steps(const char *path, e2e_t *e, size_t from)
     size_t next = 0;
     for (size_t i = from; i < e->n; ++i) {
         size_t k = next;
-        while (k < m && utime[k] != e->utime[i]) {
+        while (k < m && ds[k].utime != e->utime[i]) {
             ++k;
         }
         if (k == m) {
             e->unpaired++;
             continue;
         }
-        e->overhead_us[e->n_overhead++] = e->us[i] - (double)ns[k] * 1e-3;
+        e->overhead_us[e->n_overhead++] = e->us[i] - (double)ds[k].ns * 1e-3;
+        add_stages(e, i, &ds[k]);
         next = k + 1;
     }
-    free(utime);
-    free(ns);
+    free(ds);
 }
 
 static void run_e2e(const char *dir, e2e_t *e)
@@ -718,7 +834,7 @@ static void run_e2e(const char *dir, e2e_t *e)
         snprintf(name, sizeof(name), "steps_%d.txt", pass);
         path_join(steps, sizeof(steps), dir, name);
         unlink(traj); /* vislamd appends */
-        const char *dargv[16];
+        const char *dargv[20];
         int k = 0;
         dargv[k++] = vislamd;
         dargv[k++] = "--trajectory";
@@ -739,8 +855,15 @@ static void run_e2e(const char *dir, e2e_t *e)
             dargv[k++] = "--config";
             dargv[k++] = opt.config_path;
         }
+        if (opt.busy_poll_us != NULL) {
+            dargv[k++] = "--busy-poll-us";
+            dargv[k++] = opt.busy_poll_us;
+        }
+        if (opt.lcm_receive_thread) {
+            dargv[k++] = "--lcm-receive-thread";
+        }
         dargv[k] = NULL;
-        const char *rargv[24];
+        const char *rargv[28];
         int r = 0;
         rargv[r++] = replay;
         rargv[r++] = opt.log_path;
@@ -763,6 +886,13 @@ static void run_e2e(const char *dir, e2e_t *e)
         if (opt.lcm_url != NULL) {
             rargv[r++] = "--lcm-url";
             rargv[r++] = opt.lcm_url;
+        }
+        if (opt.busy_poll_us != NULL) {
+            rargv[r++] = "--busy-poll-us";
+            rargv[r++] = opt.busy_poll_us;
+        }
+        if (opt.lcm_receive_thread) {
+            rargv[r++] = "--lcm-receive-thread";
         }
         rargv[r] = NULL;
         /* vislamd pins and schedules itself (its own warnings if refused); the replay is pinned here. */
@@ -931,6 +1061,8 @@ static int run_plot(const char *json, const char *png)
 
 typedef struct {
     summary_t step, prop, e2e, lcm, jitter_cpu[VL_JITTER_MAX_CPUS];
+    summary_t stage[STAGE_COUNT]; /* the LCM overhead's stages */
+    summary_t transport;          /* the LCM overhead less its queued stages: LCM's and the OS's own share */
     double jitter_max, jitter_p99;
     int jitter_cpus;
     uint64_t jitter_samples;
@@ -995,6 +1127,16 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
     json_summary(f, "lcm_overhead_us", opt.e2e ? &res->lcm : NULL, ",");
     fprintf(f, "  \"e2e_frames\": {\"expected\": %lld, \"returned\": %lld, \"paired\": %zu},\n", e->expected,
             e->returned, e->n_overhead);
+    json_summary(f, "lcm_transport_us", opt.e2e ? &res->transport : NULL, ",");
+    if (!opt.e2e || e->n_stages == 0) {
+        fprintf(f, "  \"lcm_stages_us\": null,\n");
+    } else {
+        fprintf(f, "  \"lcm_stages_us\": {\n");
+        for (int k = 0; k < STAGE_COUNT; ++k) {
+            json_summary_at(f, "    ", stage_name[k], &res->stage[k], k + 1 < STAGE_COUNT ? "," : "");
+        }
+        fprintf(f, "  },\n");
+    }
     fprintf(f, "  \"jitter_floor_us\": ");
     if (res->jitter_samples == 0) {
         fprintf(f, "null,\n");
@@ -1032,6 +1174,12 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
     json_array(f, "step_us", step_sorted, nsteps, ",");
     json_array(f, "e2e_us", e->us, opt.e2e ? e->n : 0, ",");
     json_array(f, "lcm_overhead_us", e->overhead_us, opt.e2e ? e->n_overhead : 0, ",");
+    fprintf(f, "    \"lcm_stages_us\": {\n");
+    for (int k = 0; k < STAGE_COUNT; ++k) {
+        json_array_at(f, "      ", stage_name[k], e->stage_us[k], opt.e2e ? e->n_stages : 0,
+                      k + 1 < STAGE_COUNT ? "," : "");
+    }
+    fprintf(f, "    },\n");
     fprintf(f, "    \"jitter_hist_us\": [");
     int first = 1;
     for (size_t b = 0; b < VL_LATENCY_BUCKETS; ++b) {
@@ -1220,6 +1368,20 @@ int main(int argc, char **argv)
         res.lcm = summarize(lcm_sorted, e2e.n_overhead);
     }
     free(lcm_sorted);
+    double *stage_sorted = (double *)malloc((e2e.n_stages > 0 ? e2e.n_stages : 1) * sizeof(double));
+    for (int k = 0; k < STAGE_COUNT && stage_sorted != NULL && e2e.n_stages > 0; ++k) {
+        memcpy(stage_sorted, e2e.stage_us[k], e2e.n_stages * sizeof(double));
+        res.stage[k] = summarize(stage_sorted, e2e.n_stages);
+    }
+    for (size_t j = 0; j < e2e.n_stages && stage_sorted != NULL; ++j) {
+        stage_sorted[j] = 0.0;
+        for (int k = 0; k < STAGE_COUNT; ++k) {
+            const int queued = k == STAGE_QUEUED_WAKE || k == STAGE_QUEUED_STEP || k == STAGE_QUEUED_PUBLISH;
+            stage_sorted[j] += queued ? 0.0 : e2e.stage_us[k][j];
+        }
+    }
+    res.transport = summarize(stage_sorted, stage_sorted != NULL ? e2e.n_stages : 0);
+    free(stage_sorted);
     const summary_t w = summarize(work, nsteps);
     res.work_p50 = w.p50;
     res.work_max = w.max;
@@ -1245,6 +1407,14 @@ int main(int argc, char **argv)
         }
         if (res.lcm.n > 0) {
             print_summary("LCM overhead (e2e - its step)", &res.lcm);
+        }
+        for (int k = 0; k < STAGE_COUNT && e2e.n_stages > 0; ++k) {
+            char label[48];
+            snprintf(label, sizeof(label), "  stage %s", stage_name[k]);
+            print_summary(label, &res.stage[k]);
+        }
+        if (res.transport.n > 0) {
+            print_summary("LCM overhead less queued", &res.transport);
         }
         fprintf(stderr, "  end to end: %lld of %lld poses came back\n", e2e.returned, e2e.expected);
         if (e2e.unpaired > 0) {
@@ -1304,6 +1474,12 @@ int main(int argc, char **argv)
     free(e2e.us);
     free(e2e.utime);
     free(e2e.overhead_us);
+    for (int k = 0; k < 3; ++k) {
+        free(e2e.stamp[k]);
+    }
+    for (int k = 0; k < STAGE_COUNT; ++k) {
+        free(e2e.stage_us[k]);
+    }
     free(lg.events);
     return rc;
 }

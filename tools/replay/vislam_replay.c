@@ -37,6 +37,7 @@
 #include "vl_cli.h"
 #include "vl_clock.h"
 #include "vl_latency.h"
+#include "vl_lcm_rx.h"
 #include "vl_log_guard.h"
 #include "vl_log_reader.h"
 #include "vl_msg.h"
@@ -81,7 +82,9 @@ typedef struct {
     int max;
     int lockstep;
     long timeout_ms;
-    long wait_timeout_ms; /* --wait-for; negative: timeout_ms */
+    long busy_poll_us;      /* lockstep: spin on the socket this long for the pose before sleeping */
+    int lcm_receive_thread; /* receive through liblcm's thread rather than on the socket directly */
+    long wait_timeout_ms;   /* --wait-for; negative: timeout_ms */
     long linger_ms;
     int quiet;
 } options_t;
@@ -100,6 +103,8 @@ typedef struct {
 typedef struct {
     options_t opt;
     lcm_t *lcm;
+    int direct;     /* received on the socket in this thread (vl_lcm_rx), not through liblcm's */
+    vl_lcm_rx_t rx; /* the direct receiver */
     vl_log_guard_t guard;
     /* the log's latest calibration, re-published like a latched message */
     uint8_t calib_buf[CALIB_MAX];
@@ -127,10 +132,11 @@ typedef struct {
     int waiting;
     int64_t expected_utime;
     int64_t publish_mono_us;
+    int64_t publish_real_ns; /* the same instant on CLOCK_REALTIME, ns: compared with vislamd's stamps */
     int matched;
     uint64_t expected, returned, missing;
     vl_latency_t latency;
-    FILE *samples; /* --latency-samples: per frame, its end-to-end latency (us) and utime (us) */
+    FILE *samples; /* --latency-samples: per frame, its end-to-end latency (us), utime (us), stamps (ns) */
     vislam_pose_t pose_msg;
     /* inputs decoded with the receivers' checks (vl_log_event_decode), for their utime */
     vl_log_decoder_t decoder;
@@ -174,9 +180,14 @@ static void usage(FILE *f)
             "  --status-channel C    the daemon's status: a pose count going back there is a daemon\n"
             "                        restart, whose sequence numbers start again (default " VL_CHANNEL_STATUS ")\n"
             "  --lcm-url URL         LCM provider (default: $LCM_DEFAULT_URL, else LCM's default)\n"
+            "  --busy-poll-us N      lockstep: spin on the socket up to N us for the pose before sleeping\n"
+            "                        (default 0): trades a CPU for the wake-up\n"
+            "  --lcm-receive-thread  receive through liblcm's thread, queue and pipe instead of reading the\n"
+            "                        multicast socket directly (other LCM providers than udpm:// always do)\n"
             "  --summary-json FILE   also write the summary as JSON\n"
             "  --latency-samples FILE  lockstep: a line per frame answered: its end-to-end latency (us),\n"
-            "                        then its utime (us)\n"
+            "                        its utime (us), then CLOCK_REALTIME ns: frame published, the pose's\n"
+            "                        kernel receive stamp, pose handler called\n"
             "  --quiet               no progress line and no summary on stderr\n"
             "  --version             print the version and exit\n"
             "  --help                this text\n"
@@ -226,6 +237,9 @@ static int parse_args(int argc, char **argv, options_t *o)
         } else if (strcmp(a, "--lockstep") == 0) {
             o->lockstep = 1;
             continue;
+        } else if (strcmp(a, "--lcm-receive-thread") == 0) {
+            o->lcm_receive_thread = 1;
+            continue;
         } else if (strcmp(a, "--quiet") == 0) {
             o->quiet = 1;
             continue;
@@ -241,10 +255,10 @@ static int parse_args(int argc, char **argv, options_t *o)
             continue;
         }
         static const char *const with_value[] = {
-            "--speed",           "--timeout-ms",   "--linger-ms",        "--channels",
-            "--lcm-url",         "--pose-channel", "--features-channel", "--wait-for",
-            "--summary-json",    "--imu-channel",  "--calib-channel",    "--status-channel",
-            "--calib-period-ms", "--max-timeouts", "--wait-timeout-ms",  "--latency-samples"};
+            "--speed",           "--timeout-ms",       "--linger-ms",       "--channels",     "--lcm-url",
+            "--pose-channel",    "--features-channel", "--wait-for",        "--summary-json", "--imu-channel",
+            "--calib-channel",   "--status-channel",   "--calib-period-ms", "--max-timeouts", "--wait-timeout-ms",
+            "--latency-samples", "--busy-poll-us"};
         int known = 0;
         for (size_t k = 0; k < sizeof(with_value) / sizeof(with_value[0]); ++k) {
             known |= strcmp(a, with_value[k]) == 0;
@@ -282,13 +296,17 @@ static int parse_args(int argc, char **argv, options_t *o)
                 dst = &o->wait_timeout_ms;
             }
             *dst = n;
-        } else if (strcmp(a, "--max-timeouts") == 0) {
+        } else if (strcmp(a, "--max-timeouts") == 0 || strcmp(a, "--busy-poll-us") == 0) {
             const long n = strtol(v, &end, 10);
             if (end == v || *end != '\0' || errno != 0 || n < 0 || n > 1000000L) {
                 fprintf(stderr, "vislam-replay: %s %s: expected an integer in 0..1000000\n", a, v);
                 return -1;
             }
-            o->max_timeouts = n;
+            if (strcmp(a, "--busy-poll-us") == 0) {
+                o->busy_poll_us = n;
+            } else {
+                o->max_timeouts = n;
+            }
         } else if (strcmp(a, "--imu-channel") == 0) {
             o->imu_channel = v;
         } else if (strcmp(a, "--calib-channel") == 0) {
@@ -459,6 +477,7 @@ static void on_pose(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
     (void)channel;
     replay_t *r = (replay_t *)user;
     const int64_t now = vl_clock_monotonic_us();
+    const int64_t now_real_ns = vl_clock_realtime_ns();
     if (!vl_msg_decoded_whole(vislam_pose_t_decode(rbuf->data, 0, (int)rbuf->data_size, &r->pose_msg),
                               (int)rbuf->data_size)) {
         r->pose_decode_errors++;
@@ -491,7 +510,8 @@ static void on_pose(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
         r->matched = 1;
         vl_latency_record(&r->latency, now - r->publish_mono_us);
         if (r->samples != NULL) {
-            fprintf(r->samples, "%" PRId64 " %" PRId64 "\n", now - r->publish_mono_us, m->utime);
+            fprintf(r->samples, "%" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 "\n",
+                    now - r->publish_mono_us, m->utime, r->publish_real_ns, rbuf->recv_utime * 1000, now_real_ns);
         }
     }
 }
@@ -542,6 +562,10 @@ static void resend_calibration_if_asked(replay_t *r)
 /* Handles whatever has arrived, without blocking. */
 static void poll_incoming(replay_t *r)
 {
+    if (r->direct) {
+        vl_lcm_rx_poll(&r->rx, 10000);
+        return;
+    }
     const int fd = lcm_get_fileno(r->lcm);
     for (int i = 0; i < 10000; ++i) {
         struct pollfd p = {fd, POLLIN, 0};
@@ -554,16 +578,38 @@ static void poll_incoming(replay_t *r)
 /* Handles messages until *flag is set, the deadline passes or a stop is requested. */
 static int wait_until_flag(replay_t *r, const int *flag, int64_t deadline_us)
 {
+    /* --busy-poll-us: the first part of the wait reads the socket without sleeping. */
+    const int64_t spin_until = vl_clock_monotonic_us() + (r->direct ? r->opt.busy_poll_us : 0);
     while (!*flag && !vl_signal_stop_requested()) {
-        const int64_t left = deadline_us - vl_clock_monotonic_us();
+        const int64_t now = vl_clock_monotonic_us();
+        const int64_t left = deadline_us - now;
         if (left <= 0) {
             break;
         }
-        const int ms = (int)((left + 999) / 1000);
-        lcm_handle_timeout(r->lcm, ms > 100 ? 100 : ms);
+        if (now < spin_until) {
+            vl_lcm_rx_poll(&r->rx, 10000);
+            continue;
+        }
+        if (r->direct) {
+            if (vl_signal_wait_fd(vl_lcm_rx_fd(&r->rx), left > 100000 ? 100000 : left) > 0) {
+                vl_lcm_rx_poll(&r->rx, 10000);
+            }
+        } else {
+            const int ms = (int)((left + 999) / 1000);
+            lcm_handle_timeout(r->lcm, ms > 100 ? 100 : ms);
+        }
         resend_calibration_if_asked(r);
     }
     return *flag;
+}
+
+/* Subscribes handler to channel, directly or through liblcm; 0 or -1. */
+static int subscribe(replay_t *r, const char *channel, lcm_msg_handler_t handler)
+{
+    if (r->direct) {
+        return vl_lcm_rx_subscribe(&r->rx, channel, handler, r);
+    }
+    return lcm_subscribe(r->lcm, channel, handler, r) != NULL ? 0 : -1;
 }
 
 /* ---- progress and summary ---- */
@@ -703,12 +749,34 @@ int main(int argc, char **argv)
         lcm_eventlog_destroy(log);
         return EXIT_USAGE;
     }
-    lcm_subscribe(r->lcm, o->pose_channel, on_pose, r);
-    lcm_subscribe(r->lcm, o->status_channel, on_status, r);
+    /* A udpm:// URL is read on its socket here (vl_lcm_rx), so a pose wakes this thread once. */
+    char err[256];
+    const int rx = o->lcm_receive_thread ? 1 : vl_lcm_rx_open(&r->rx, o->lcm_url, r->lcm, err, sizeof(err));
+    if (rx < 0) {
+        fprintf(stderr, "vislam-replay: %s\n", err);
+        lcm_destroy(r->lcm);
+        lcm_eventlog_destroy(log);
+        return EXIT_USAGE;
+    }
+    r->direct = rx == 0;
+    if (!r->direct) {
+        r->rx.fd = -1;
+    }
+    if (subscribe(r, o->pose_channel, on_pose) != 0 || subscribe(r, o->status_channel, on_status) != 0) {
+        fprintf(stderr, "vislam-replay: cannot subscribe to %s and %s\n", o->pose_channel, o->status_channel);
+        lcm_destroy(r->lcm);
+        lcm_eventlog_destroy(log);
+        return EXIT_USAGE;
+    }
 
     int incomplete = 0;
     if (o->wait_for != NULL) {
-        lcm_subscribe(r->lcm, o->wait_for, on_wait_for, r);
+        if (subscribe(r, o->wait_for, on_wait_for) != 0) {
+            fprintf(stderr, "vislam-replay: cannot subscribe to %s\n", o->wait_for);
+            lcm_destroy(r->lcm);
+            lcm_eventlog_destroy(log);
+            return EXIT_USAGE;
+        }
         const long wait_ms = o->wait_timeout_ms >= 0 ? o->wait_timeout_ms : o->timeout_ms;
         if (!wait_until_flag(r, &r->saw_wait_for, vl_clock_monotonic_us() + wait_ms * 1000)) {
             fprintf(stderr, "vislam-replay: nothing on %s within %ld ms%s\n", o->wait_for, wait_ms,
@@ -809,6 +877,7 @@ int main(int argc, char **argv)
             remember_input(r, r->input.imu.utime, VISLAM_POSE_T_SOURCE_IMU);
         }
         r->publish_mono_us = vl_clock_monotonic_us();
+        r->publish_real_ns = vl_clock_realtime_ns();
         if (is_frame) {
             r->waiting = 1;
             r->matched = 0;
@@ -869,6 +938,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "vislam-replay: write error on %s\n", o->latency_samples);
         incomplete = 1;
     }
+    vl_lcm_rx_close(&r->rx);
     lcm_destroy(r->lcm);
     lcm_eventlog_destroy(log);
     /* Said even with --quiet: a damaged log or someone else's poses must not pass unnoticed. */

@@ -44,6 +44,7 @@
 #include "vl_clock.h"
 #include "vl_config_file.h"
 #include "vl_latency.h"
+#include "vl_lcm_rx.h"
 #include "vl_log_reader.h"
 #include "vl_msg.h"
 #include "vl_notify.h"
@@ -70,9 +71,11 @@
 #define INTERVAL_WINDOW 32 /* IMU intervals the automatic budget takes the median of */
 #define STACK_PREFAULT_BYTES (256 * 1024)
 #define DRAIN_MAX 1000     /* messages already queued that are still processed at shutdown */
-#define LCM_ERRORS_MAX 100 /* consecutive lcm_handle failures before giving up */
+#define LCM_ERRORS_MAX 100 /* consecutive receive failures (lcm_handle or the socket) before giving up */
+#define RX_BATCH 64        /* datagrams one wake-up of the direct receiver reads at most */
+#define BUSY_POLL_MAX_US 1000000
 #define ENCODE_BUF 1024
-#define STEP_SAMPLES_MAX 65536 /* --step-samples: frames kept (1 MiB; 1.8 h at 10 Hz), later ones counted */
+#define STEP_SAMPLES_MAX 65536 /* --step-samples: frames kept (3.5 MiB; 1.8 h at 10 Hz), later ones counted */
 #define STEP_SAMPLES_BUF 65536 /* its stdio buffer, given at start-up so that writing it does not allocate */
 
 typedef struct {
@@ -82,9 +85,11 @@ typedef struct {
     const char *step_samples_path;
     const char *prefix;
     const char *channel[6];
-    long budget_us;  /* 0: automatic */
-    int rt_priority; /* 0: leave the scheduler alone */
-    int cpu;         /* -1: no affinity */
+    long budget_us;         /* 0: automatic */
+    long busy_poll_us;      /* direct receive: spin on the socket this long before sleeping; 0: never */
+    int lcm_receive_thread; /* receive through liblcm's thread and pipe, not on the socket directly */
+    int rt_priority;        /* 0: leave the scheduler alone */
+    int cpu;                /* -1: no affinity */
     int no_mlock;
     int quiet;
     int print_config;
@@ -100,10 +105,19 @@ static const char *const channel_option[CH_COUNT] = {"--imu-channel",  "--featur
 typedef enum { STEP_PROPAGATE = 0, STEP_UPDATE = 1 } step_kind_t;
 
 /* One frame's step for --step-samples: the session step less its output sink, the code
-   vislam-latency's in-process pass times, so that end to end minus this is LCM's share. */
+   vislam-latency's in-process pass times, so that end to end minus this is LCM's share; and
+   CLOCK_REALTIME stamps of the frame's way through the daemon, which vislam-latency sets against
+   the replay's own (same host, same clock) to say where that share goes. */
 typedef struct {
-    int64_t utime; /**< the frame's utime, us (the pose's utime) */
-    int64_t ns;    /**< vl_session_input less its publishing (sink_ns), CLOCK_MONOTONIC ns */
+    int64_t utime;      /**< the frame's utime, us (the pose's utime) */
+    int64_t ns;         /**< vl_session_input less its publishing (sink_ns), CLOCK_MONOTONIC ns */
+    int64_t rx_ns;      /**< the kernel's receive stamp of the frame's datagram (SO_TIMESTAMP, us resolution), ns */
+    int64_t free_ns;    /**< the end of the daemon's previous input: the earliest it could take this one, ns */
+    int64_t handler_ns; /**< LCM called the frame's handler, ns */
+    int64_t step_ns;    /**< decoded: vl_session_input called, ns */
+    int64_t sent_ns;    /**< its VISLAM_POSE encoded, lcm_publish called (0: none published), ns */
+    int64_t prev_handler_ns; /**< the previous input's handler called, ns */
+    int64_t prev_sink_ns;    /**< the previous input's publishing (its sink_ns), CLOCK_MONOTONIC ns */
 } step_sample_t;
 
 /* The daemon's own counts; the inputs' are the session's (vl_session_counters). */
@@ -118,6 +132,8 @@ typedef struct {
     options_t opt;
     char channel[CH_COUNT][CHANNEL_MAX];
     lcm_t *lcm;
+    int direct;     /* inputs read from the socket by this thread (vl_lcm_rx), not through liblcm's */
+    vl_lcm_rx_t rx; /* the direct receiver */
 
     vl_config_t cfg;
     vl_config_file_info_t info;
@@ -150,6 +166,10 @@ typedef struct {
     uint64_t overruns_unlogged;
     uint64_t overruns_at_status; /* "since the last status" for BUDGET_OVERRUN */
     int64_t sink_ns;             /* time publishing (poses, statuses) during the current step, ns */
+    int64_t free_ns;             /* CLOCK_REALTIME at the end of the last input handled, ns */
+    int64_t last_handler_ns;     /* CLOCK_REALTIME when the last input's handler was called, ns */
+    int64_t last_sink_ns;        /* the last input's sink_ns */
+    int64_t pose_sent_ns;        /* CLOCK_REALTIME when the current step's VISLAM_POSE went to lcm_publish, ns */
     step_sample_t *step_samples; /* --step-samples: STEP_SAMPLES_MAX, allocated at start-up */
     size_t num_step_samples;
     uint64_t step_samples_dropped;
@@ -186,14 +206,22 @@ static void usage(FILE *f)
             "  --trajectory FILE       TUM trajectory, one line per accepted frame (vislam-run's lines),\n"
             "                          flushed line by line; appended to, never truncated: a restart\n"
             "                          adds a '# ...' comment line and its run after the earlier one\n"
-            "  --step-samples FILE     at exit, one line per frame stepped: its utime (us) and the step's\n"
-            "                          time (ns: vl_session_input less what it publishes); kept in memory\n"
-            "                          for the first %d frames (vislam-latency's LCM overhead)\n"
+            "  --step-samples FILE     at exit, one line per frame stepped: its utime (us), the step's\n"
+            "                          time (ns: vl_session_input less what it publishes), then CLOCK_REALTIME\n"
+            "                          ns: kernel receive, previous input done, handler called, step\n"
+            "                          started, pose published, previous input's handler called, and its\n"
+            "                          publishing (ns); kept in memory for the first %d frames\n"
+            "                          (vislam-latency's LCM overhead and its stages)\n"
             "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
             "                          of the last %d IMU intervals; %d us until known)\n"
             "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
             "  --cpu K                 pin to CPU K (a refusal is a warning)\n"
             "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
+            "  --busy-poll-us N        after each message, spin on the socket up to N us (0..%d) for the\n"
+            "                          next before sleeping: trades a CPU for the wake-up (default 0)\n"
+            "  --lcm-receive-thread    receive through liblcm's thread, queue and pipe instead of reading\n"
+            "                          the multicast socket in the estimation loop (the only way for LCM\n"
+            "                          providers other than udpm://)\n"
             "  --channel-prefix P      prefix every channel name below with P\n"
             "  --imu-channel NAME      default " VL_CHANNEL_IMU "\n"
             "  --features-channel NAME default " VL_CHANNEL_FEATURES "\n"
@@ -213,7 +241,7 @@ static void usage(FILE *f)
             "\n"
             "Exit status: 0 stopped by SIGINT/SIGTERM with every output flushed, 1 run-time failure\n"
             "(LCM, trajectory file), 2 usage or configuration error.\n",
-            STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US, STACK_PREFAULT_BYTES / 1024);
+            STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US, STACK_PREFAULT_BYTES / 1024, BUSY_POLL_MAX_US);
 }
 
 static int parse_long(const char *opt, const char *s, long lo, long hi, long *out)
@@ -232,7 +260,8 @@ static int parse_long(const char *opt, const char *s, long lo, long hi, long *ou
 static int takes_value(const char *a)
 {
     static const char *const names[] = {"--config",         "--lcm-url",   "--trajectory",  "--step-samples",
-                                        "--channel-prefix", "--budget-us", "--rt-priority", "--cpu"};
+                                        "--channel-prefix", "--budget-us", "--rt-priority", "--cpu",
+                                        "--busy-poll-us"};
     for (size_t i = 0; i < sizeof(names) / sizeof(names[0]); ++i) {
         if (strcmp(a, names[i]) == 0) {
             return 1;
@@ -262,6 +291,9 @@ static int parse_args(int argc, char **argv, options_t *o)
             continue;
         } else if (strcmp(a, "--no-mlock") == 0) {
             o->no_mlock = 1;
+            continue;
+        } else if (strcmp(a, "--lcm-receive-thread") == 0) {
+            o->lcm_receive_thread = 1;
             continue;
         } else if (strcmp(a, "--print-config") == 0) {
             o->print_config = 1;
@@ -297,6 +329,11 @@ static int parse_args(int argc, char **argv, options_t *o)
                 return -1;
             }
             o->budget_us = n;
+        } else if (strcmp(a, "--busy-poll-us") == 0) {
+            if (parse_long(a, v, 0, BUSY_POLL_MAX_US, &n) != 0) {
+                return -1;
+            }
+            o->busy_poll_us = n;
         } else if (strcmp(a, "--rt-priority") == 0) {
             if (parse_long(a, v, 1, 99, &n) != 0) {
                 return -1;
@@ -449,6 +486,7 @@ static void publish_pose(daemon_t *d, vl_session_step_t step, int64_t utime, uin
     vl_msg_from_pose(pose, source, (int64_t)sequence, &d->pose_msg);
     d->pose_msg.utime = utime;
     int len = vislam_pose_t_encode(d->pose_buf, 0, (int)sizeof(d->pose_buf), &d->pose_msg);
+    d->pose_sent_ns = vl_clock_realtime_ns();
     publish(d, CH_POSE, d->pose_buf, len);
     vl_msg_from_pose_bot(pose, &d->bot_msg);
     d->bot_msg.utime = utime;
@@ -532,7 +570,7 @@ static void notify_status(daemon_t *d)
 
 /*
  * WATCHDOG=1 every half watchdog period, sent from the loop that steps the estimator and only
- * while it is healthy (LCM's last lcm_handle succeeded): a step that hangs, or a receive side
+ * while it is healthy (the last read of its inputs succeeded): a step that hangs, or a receive side
  * that keeps failing, stops the pings and systemd restarts the daemon. Budget overruns do not
  * count: a slow step is reported in the status, a stuck one is what the watchdog is for.
  */
@@ -549,19 +587,23 @@ static void feed_watchdog(daemon_t *d, int64_t now, int healthy)
 
 /* ---- LCM handlers: decode (vl_log_event_decode), then one session step, timed ---- */
 
-static void keep_step_sample(daemon_t *d, int64_t utime, int64_t ns)
+static void keep_step_sample(daemon_t *d, const step_sample_t *s)
 {
     if (d->num_step_samples == STEP_SAMPLES_MAX) {
         d->step_samples_dropped++;
         return;
     }
-    d->step_samples[d->num_step_samples].utime = utime;
-    d->step_samples[d->num_step_samples].ns = ns;
-    d->num_step_samples++;
+    d->step_samples[d->num_step_samples++] = *s;
 }
 
 static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_buf_t *rbuf, const char *channel)
 {
+    step_sample_t sample;
+    sample.handler_ns = vl_clock_realtime_ns();
+    sample.free_ns = d->free_ns;
+    sample.prev_handler_ns = d->last_handler_ns;
+    sample.prev_sink_ns = d->last_sink_ns;
+    sample.rx_ns = rbuf->recv_utime * 1000;
     const int64_t t0 = vl_clock_monotonic_us();
     vl_log_event_t *ev = &d->ev;
     /* The channel names the event in a decode error; the LCM name is at most CHANNEL_MAX - 1 bytes. */
@@ -571,20 +613,29 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
     vl_log_event_decode(&d->decoder, kind, rbuf->data, (int)rbuf->data_size, ev);
     vl_status_t status = VL_OK;
     d->sink_ns = 0;
+    d->pose_sent_ns = 0;
+    sample.step_ns = vl_clock_realtime_ns();
     const int64_t s0 = vl_clock_monotonic_ns();
     const vl_session_step_t step = vl_session_input(&d->session, ev, &status);
     const int64_t step_ns = vl_clock_monotonic_ns() - s0 - d->sink_ns;
+    d->last_handler_ns = sample.handler_ns;
+    d->last_sink_ns = d->sink_ns;
     if (step == VL_SESSION_STEP_NONE) {
+        d->free_ns = vl_clock_realtime_ns();
         return;
     }
     const int64_t utime = step == VL_SESSION_STEP_UPDATE ? ev->frame.utime : ev->imu.utime;
     if (step == VL_SESSION_STEP_UPDATE && d->step_samples != NULL) {
-        keep_step_sample(d, utime, step_ns);
+        sample.utime = utime;
+        sample.ns = step_ns;
+        sample.sent_ns = d->pose_sent_ns;
+        keep_step_sample(d, &sample);
     }
     if (step == VL_SESSION_STEP_PROPAGATE && status >= 0) {
         note_imu_interval(d, utime);
     }
     finish_step(d, step == VL_SESSION_STEP_UPDATE ? STEP_UPDATE : STEP_PROPAGATE, t0, utime);
+    d->free_ns = vl_clock_realtime_ns();
 }
 
 static void on_calibration_msg(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
@@ -602,7 +653,8 @@ static void on_features_msg(const lcm_recv_buf_t *rbuf, const char *channel, voi
     handle_input((daemon_t *)user, VL_LOG_EVENT_FRAME, rbuf, channel);
 }
 
-/* Start-up only: the daemon's own first status, back through the multicast loopback. */
+/* Start-up only: a message of the daemon's own (its first status, the self test), back through the
+   multicast loopback. */
 static void on_own_status(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
 {
     (void)rbuf;
@@ -634,6 +686,108 @@ static void warm_up_lcm(daemon_t *d, int fd)
     if (sub != NULL) {
         lcm_unsubscribe(d->lcm, sub);
     }
+}
+
+/*
+ * The inputs' subscriptions. A udpm:// URL is read directly (vl_lcm_rx: the estimation loop waits
+ * on the multicast socket itself, one wake-up per message); any other provider, or
+ * --lcm-receive-thread, through liblcm's receive thread. The descriptor to wait on, or -1.
+ */
+static int open_receive(daemon_t *d)
+{
+    char err[256];
+    const int rc = d->opt.lcm_receive_thread ? 1 : vl_lcm_rx_open(&d->rx, d->opt.lcm_url, d->lcm, err, sizeof(err));
+    if (rc < 0) {
+        fprintf(stderr, "vislamd: %s\n", err);
+        return -1;
+    }
+    d->direct = rc == 0;
+    if (!d->direct) {
+        d->rx.fd = -1;
+        if (d->opt.busy_poll_us > 0) {
+            fprintf(stderr, "vislamd: warning: --busy-poll-us needs the direct receiver (a udpm:// URL without "
+                            "--lcm-receive-thread); not polling\n");
+            d->opt.busy_poll_us = 0;
+        }
+        if (lcm_subscribe(d->lcm, d->channel[CH_CALIB], on_calibration_msg, d) == NULL ||
+            lcm_subscribe(d->lcm, d->channel[CH_IMU], on_imu_msg, d) == NULL ||
+            lcm_subscribe(d->lcm, d->channel[CH_FEATURES], on_features_msg, d) == NULL) {
+            fprintf(stderr, "vislamd: lcm_subscribe failed\n");
+            return -1;
+        }
+        const int fd = lcm_get_fileno(d->lcm); /* also starts LCM's receive side */
+        if (fd < 0) {
+            fprintf(stderr, "vislamd: LCM has no file descriptor to wait on\n");
+        }
+        return fd;
+    }
+    if (vl_lcm_rx_subscribe(&d->rx, d->channel[CH_CALIB], on_calibration_msg, d) != 0 ||
+        vl_lcm_rx_subscribe(&d->rx, d->channel[CH_IMU], on_imu_msg, d) != 0 ||
+        vl_lcm_rx_subscribe(&d->rx, d->channel[CH_FEATURES], on_features_msg, d) != 0) {
+        fprintf(stderr, "vislamd: cannot subscribe\n");
+        vl_lcm_rx_close(&d->rx);
+        return -1;
+    }
+    return vl_lcm_rx_fd(&d->rx);
+}
+
+/* What arrived, handled: 0, or -1 when the receive side failed. */
+static int receive(daemon_t *d)
+{
+    if (!d->direct) {
+        return lcm_handle(d->lcm) != 0 ? -1 : 0;
+    }
+    return vl_lcm_rx_poll(&d->rx, RX_BATCH) < 0 ? -1 : 0;
+}
+
+/*
+ * --busy-poll-us: reads the socket without sleeping until a message is handled or until_us
+ * (CLOCK_MONOTONIC) passes; 1 when something was handled. SIGINT and SIGTERM stay blocked while
+ * it spins, so a pending one ends the spin and the loop's wait takes it.
+ */
+static int busy_poll(daemon_t *d, int64_t until_us)
+{
+    sigset_t pending;
+    for (;;) {
+        if (sigpending(&pending) == 0 && (sigismember(&pending, SIGINT) == 1 || sigismember(&pending, SIGTERM) == 1)) {
+            return 0;
+        }
+        const int n = vl_lcm_rx_poll(&d->rx, RX_BATCH);
+        if (n != 0) {
+            return n > 0;
+        }
+        if (vl_clock_monotonic_us() >= until_us) {
+            return 0;
+        }
+    }
+}
+
+/*
+ * The direct receiver's start-up check, as liblcm's own self test: a message on LCM's self-test
+ * channel, published and read back through the multicast loopback (up to 200 ms). It also makes
+ * liblcm's lazy first-publish set-up happen before memory is locked. No answer is only a warning:
+ * the inputs may still come from another host.
+ */
+static void self_test_direct(daemon_t *d)
+{
+    static const char channel[] = "LCM_SELF_TEST";
+    static const char text[] = "vislamd self test";
+    int seen = 0;
+    if (vl_lcm_rx_subscribe(&d->rx, channel, on_own_status, &seen) != 0) {
+        return;
+    }
+    lcm_publish(d->lcm, channel, text, (unsigned)sizeof(text));
+    const int64_t deadline = vl_clock_monotonic_us() + 200000;
+    while (!seen) {
+        const int64_t left = deadline - vl_clock_monotonic_us();
+        if (left <= 0 || vl_signal_wait_fd(d->rx.fd, left) <= 0) {
+            fprintf(stderr, "vislamd: warning: its own message did not come back through %s in 200 ms\n",
+                    d->opt.lcm_url != NULL ? d->opt.lcm_url : "the default LCM url");
+            break;
+        }
+        vl_lcm_rx_poll(&d->rx, RX_BATCH);
+    }
+    vl_lcm_rx_unsubscribe(&d->rx, channel, on_own_status);
 }
 
 /* ---- start-up ---- */
@@ -725,12 +879,18 @@ static int open_step_samples(daemon_t *d)
     return 0;
 }
 
-/* At exit: the kept samples, "utime ns" a line; 0, or -1 on a write error. */
+/* At exit: the kept samples, "utime ns" and the stamps (step_sample_t's order) a line; 0, or -1 on
+   a write error. */
 static int write_step_samples(daemon_t *d)
 {
     FILE *f = d->step_samples_file;
     for (size_t i = 0; i < d->num_step_samples; ++i) {
-        fprintf(f, "%" PRId64 " %" PRId64 "\n", d->step_samples[i].utime, d->step_samples[i].ns);
+        const step_sample_t *s = &d->step_samples[i];
+        fprintf(f,
+                "%" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64 " %" PRId64
+                " %" PRId64 "\n",
+                s->utime, s->ns, s->rx_ns, s->free_ns, s->handler_ns, s->step_ns, s->sent_ns, s->prev_handler_ns,
+                s->prev_sink_ns);
     }
     if (d->step_samples_dropped > 0) {
         fprintf(stderr, "vislamd: %s: the first %d frames kept, %" PRIu64 " later ones not\n", d->opt.step_samples_path,
@@ -864,25 +1024,24 @@ int main(int argc, char **argv)
                 d->opt.lcm_url != NULL ? d->opt.lcm_url : "default; set --lcm-url or LCM_DEFAULT_URL");
         return EXIT_RUNTIME;
     }
-    if (lcm_subscribe(d->lcm, d->channel[CH_CALIB], on_calibration_msg, d) == NULL ||
-        lcm_subscribe(d->lcm, d->channel[CH_IMU], on_imu_msg, d) == NULL ||
-        lcm_subscribe(d->lcm, d->channel[CH_FEATURES], on_features_msg, d) == NULL) {
-        fprintf(stderr, "vislamd: lcm_subscribe failed\n");
-        lcm_destroy(d->lcm);
-        return EXIT_RUNTIME;
-    }
-    const int fd = lcm_get_fileno(d->lcm); /* also starts LCM's receive side */
+    const int fd = open_receive(d);
     if (fd < 0) {
-        fprintf(stderr, "vislamd: LCM has no file descriptor to wait on\n");
         lcm_destroy(d->lcm);
         return EXIT_RUNTIME;
     }
-
-    warm_up_lcm(d, fd); /* also publishes the first status: "I am up" */
+    if (d->direct) {
+        self_test_direct(d);
+    } else {
+        warm_up_lcm(d, fd); /* also publishes the first status: "I am up" */
+    }
 
     /* End of start-up: everything the loop uses is mapped; lock it. From here on the loop does
        not allocate (an LD_PRELOAD counter can take this mlockall as its mark: tests/support). */
     lock_memory(&d->opt);
+    if (d->direct) {
+        /* "I am up" only now: a replay that starts on it finds the daemon ready, not in mlockall. */
+        publish_status(d);
+    }
     if (!d->opt.quiet) {
         fprintf(stderr, "vislamd: ready: %s %s %s -> %s %s %s (lcm %s)%s\n", d->channel[CH_IMU],
                 d->channel[CH_FEATURES], d->channel[CH_CALIB], d->channel[CH_POSE], d->channel[CH_BOT_POSE],
@@ -914,11 +1073,15 @@ int main(int argc, char **argv)
         if (d->watchdog_period_us > 0 && d->next_watchdog_us < wake) {
             wake = d->next_watchdog_us;
         }
+        if (d->opt.busy_poll_us > 0 &&
+            busy_poll(d, now + d->opt.busy_poll_us < wake ? now + d->opt.busy_poll_us : wake)) {
+            continue;
+        }
         const int r = vl_signal_wait_fd(fd, wake - now);
         if (r > 0) {
-            if (lcm_handle(d->lcm) != 0) {
+            if (receive(d) != 0) {
                 if (++lcm_errors >= LCM_ERRORS_MAX) {
-                    fprintf(stderr, "vislamd: lcm_handle failed %d times in a row; stopping\n", lcm_errors);
+                    fprintf(stderr, "vislamd: receiving from LCM failed %d times in a row; stopping\n", lcm_errors);
                     exit_code = EXIT_RUNTIME;
                     break;
                 }
@@ -939,7 +1102,7 @@ int main(int argc, char **argv)
     /* Messages already received are still processed, so no input that arrived is lost. */
     for (int i = 0; i < DRAIN_MAX && exit_code == 0; ++i) {
         struct pollfd p = {fd, POLLIN, 0};
-        if (poll(&p, 1, 0) != 1 || !(p.revents & POLLIN) || lcm_handle(d->lcm) != 0) {
+        if (poll(&p, 1, 0) != 1 || !(p.revents & POLLIN) || receive(d) != 0) {
             break;
         }
     }
@@ -955,6 +1118,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "vislamd: error: the trajectory %s is incomplete (write error)\n", d->opt.trajectory_path);
         exit_code = EXIT_RUNTIME;
     }
+    vl_lcm_rx_close(&d->rx);
     lcm_destroy(d->lcm);
     vl_notify_close(&d->notify);
     return exit_code;
