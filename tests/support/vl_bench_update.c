@@ -83,7 +83,7 @@ int main(int argc, char **argv)
     vl_la_configure();
     make_covariance(n, &state);
     make_observations(n, k, &state);
-    const vl_la_workspace_t ws = {PHt, S, dx};
+    const vl_la_workspace_t ws = {PHt, S, dx, NULL, NULL};
     int64_t best = INT64_MAX, total = 0;
     for (int r = 0; r < reps; ++r) {
         memcpy(P, P0, sizeof(double) * (size_t)LD * (size_t)n);
