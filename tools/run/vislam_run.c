@@ -44,6 +44,7 @@ typedef struct {
     int quiet;
     int timing;
     int print_config;
+    vl_worker_options_t worker;
 } options_t;
 
 /* Compact map entry: what the PLY needs. */
@@ -90,7 +91,7 @@ static void usage(FILE *f)
             "  --mode MODE          imu_only|mapping|slam (overrides the config file)\n"
             "  --max-landmarks N    active window, 1..%d (overrides the config file)\n"
             "  --stats-json FILE    counters (and timing with --timing) as JSON\n"
-            "  --timing             per-step wall time of vl_update and vl_propagate on stderr\n"
+            "  --timing             per-step wall time of vl_update and vl_propagate on stderr\n" VL_WORKER_USAGE
             "  --quiet              no summary and no core warnings on stderr\n"
             "  --print-config       print the effective configuration (INI) to stdout and exit\n"
             "  --version            print the version and exit\n"
@@ -108,10 +109,18 @@ static void usage(FILE *f)
 static int parse_args(int argc, char **argv, options_t *o)
 {
     memset(o, 0, sizeof(*o));
+    vl_worker_options_default(&o->worker);
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
         const char **target = NULL;
-        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+        const int worker_option =
+            vl_worker_parse_option("vislam-run", a, i + 1 < argc ? argv[i + 1] : NULL, &o->worker);
+        if (worker_option != 0) {
+            if (worker_option < 0) {
+                return -1;
+            }
+            ++i;
+        } else if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             exit(0);
         } else if (strcmp(a, "--version") == 0) {
@@ -488,9 +497,15 @@ int main(int argc, char **argv)
         }
     }
 
+    static vl_worker_t worker;
+    char wmsg[256];
+    if (vl_worker_start(&worker, &o.worker, wmsg, sizeof(wmsg)) != 0 || (o.worker.threads > 1 && !o.quiet)) {
+        fprintf(stderr, "vislam-run: %s\n", wmsg);
+    }
     vl_session_options_t so;
     memset(&so, 0, sizeof(so));
     so.program = "vislam-run";
+    so.worker = &worker;
     so.quiet = o.quiet;
     so.config_has_calibration = info.has_calibration;
     so.override_log = info.override_log;
@@ -499,6 +514,7 @@ int main(int argc, char **argv)
     so.callbacks.user = &sinks;
     if (vl_session_init(&session, est, &cfg, &so) != VL_OK) {
         fprintf(stderr, "vislam-run: vl_init refused the configuration\n");
+        vl_worker_stop(&worker);
         if (sinks.cov_file != NULL) {
             fclose(sinks.cov_file);
         }
@@ -525,6 +541,7 @@ int main(int argc, char **argv)
         }
     }
     vl_session_flush(&session);
+    vl_worker_stop(&worker);
 
     int io_error = 0;
     if (vl_trajectory_close(&sinks.traj) != 0) {
