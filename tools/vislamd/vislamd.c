@@ -88,6 +88,7 @@ typedef struct {
     int no_mlock;
     int quiet;
     int print_config;
+    vl_worker_options_t worker;
 } options_t;
 
 enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_COUNT };
@@ -192,7 +193,7 @@ static void usage(FILE *f)
             "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
             "                          of the last %d IMU intervals; %d us until known)\n"
             "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
-            "  --cpu K                 pin to CPU K (a refusal is a warning)\n"
+            "  --cpu K                 pin to CPU K (a refusal is a warning)\n" VL_WORKER_USAGE
             "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
             "  --channel-prefix P      prefix every channel name below with P\n"
             "  --imu-channel NAME      default " VL_CHANNEL_IMU "\n"
@@ -250,8 +251,17 @@ static int parse_args(int argc, char **argv, options_t *o)
 {
     memset(o, 0, sizeof(*o));
     o->cpu = -1;
+    vl_worker_options_default(&o->worker);
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
+        const int worker_option = vl_worker_parse_option("vislamd", a, i + 1 < argc ? argv[i + 1] : NULL, &o->worker);
+        if (worker_option != 0) {
+            if (worker_option < 0) {
+                return -1;
+            }
+            ++i;
+            continue;
+        }
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             exit(0);
@@ -822,10 +832,21 @@ int main(int argc, char **argv)
         return EXIT_RUNTIME;
     }
     realtime_setup(&d->opt);
+    /* After the daemon's own CPU and priority: the worker avoids that CPU and takes that priority. */
+    static vl_worker_t worker;
+    {
+        char msg[256];
+        d->opt.worker.priority = d->opt.rt_priority;
+        if (vl_worker_start(&worker, &d->opt.worker, msg, sizeof(msg)) != 0 ||
+            (d->opt.worker.threads > 1 && !d->opt.quiet)) {
+            fprintf(stderr, "vislamd: %s\n", msg);
+        }
+    }
 
     vl_session_options_t so;
     memset(&so, 0, sizeof(so));
     so.program = "vislamd";
+    so.worker = &worker;
     so.quiet = d->opt.quiet;
     so.config_has_calibration = d->info.has_calibration;
     so.override_log = d->info.override_log;
@@ -956,6 +977,7 @@ int main(int argc, char **argv)
         exit_code = EXIT_RUNTIME;
     }
     lcm_destroy(d->lcm);
+    vl_worker_stop(&worker);
     vl_notify_close(&d->notify);
     return exit_code;
 }
