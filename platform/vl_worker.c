@@ -183,6 +183,14 @@ int vl_worker_start(vl_worker_t *w, const vl_worker_options_t *o, char *msg, siz
 void vl_worker_parallel_for(void *ctx, vl_parallel_task_fn task, void *arg, uint32_t count)
 {
     vl_worker_t *w = (vl_worker_t *)ctx;
+    if (count == 0) {
+        /* A loop is coming: wake the worker now, so that it spins ready instead of waking late. */
+        if (w != NULL && w->running && __atomic_load_n(&w->worker_sleeping, __ATOMIC_SEQ_CST)) {
+            __atomic_add_fetch(&w->generation, 1u, __ATOMIC_SEQ_CST);
+            futex_wake(&w->generation);
+        }
+        return;
+    }
     if (w == NULL || !w->running || count < 2) {
         for (uint32_t i = 0; i < count; ++i) {
             task(arg, i);

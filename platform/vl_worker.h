@@ -9,7 +9,8 @@
  * none is left, so a worker that wakes late costs nothing but its share, and
  * the caller returns once every task has finished. Between loops the worker
  * spins for VL_WORKER_SPIN_NS (the update's two loops come microseconds
- * apart), then sleeps on a futex. Nothing is allocated after the start.
+ * apart), then sleeps on a futex; a loop of count 0 (the update's first call)
+ * wakes it early. Nothing is allocated after the start.
  *
  * The core's blocks are fixed by the update's dimensions, never by who runs
  * them, so a run with the worker is bit-identical to one without.
@@ -28,7 +29,7 @@ extern "C" {
 #endif
 
 /** How long the worker spins for the next loop before it sleeps, ns. */
-#define VL_WORKER_SPIN_NS 50000
+#define VL_WORKER_SPIN_NS 200000
 /** Stack the worker touches at start (Eigen's packing buffers live there), bytes. */
 #define VL_WORKER_STACK_PREFAULT (256 * 1024)
 

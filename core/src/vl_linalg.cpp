@@ -262,6 +262,9 @@ extern "C" int vl_la_single_correction(const double *Pbuf, int ld, int n, const 
 extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws)
 {
     no_heap_scope guard;
+    if (ws->parallel_for != nullptr) {
+        ws->parallel_for(ws->parallel_ctx, whiten_task, nullptr, 0); /* the blocks come after S's factorization */
+    }
     const Eigen::Index m = 3 * static_cast<Eigen::Index>(k);
     MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
     DenseMap PHt(ws->PHt, n, m);
