@@ -106,12 +106,13 @@ static void *worker_main(void *p)
     vl_rt_prefault_stack(VL_WORKER_STACK_PREFAULT, s, sizeof(s));
     snprintf(w->msg, sizeof(w->msg), "worker thread: %s%s%s", a[0] ? a : "not pinned", f[0] ? "; " : "", f);
     uint32_t seen = __atomic_load_n(&w->generation, __ATOMIC_ACQUIRE);
+    int64_t spin_ns = VL_WORKER_SPIN_NS;
     __atomic_store_n(&w->ready, 1, __ATOMIC_SEQ_CST);
     futex_wake(&w->ready);
     for (;;) {
         uint32_t g = __atomic_load_n(&w->generation, __ATOMIC_ACQUIRE);
         if (g == seen) {
-            const int64_t until = vl_clock_monotonic_ns() + VL_WORKER_SPIN_NS;
+            const int64_t until = vl_clock_monotonic_ns() + spin_ns;
             while (g == seen && vl_clock_monotonic_ns() < until) {
                 cpu_relax();
                 g = __atomic_load_n(&w->generation, __ATOMIC_ACQUIRE);
@@ -131,7 +132,7 @@ static void *worker_main(void *p)
         if (__atomic_load_n(&w->stop, __ATOMIC_ACQUIRE)) {
             return NULL;
         }
-        (void)run_share(w, 1);
+        spin_ns = run_share(w, 1) > 0 ? VL_WORKER_SPIN_NS : VL_WORKER_READY_NS;
     }
 }
 
@@ -212,7 +213,7 @@ void vl_worker_parallel_for(void *ctx, vl_parallel_task_fn task, void *arg, uint
     (void)run_share(w, 0);
     /* Wait for the tasks the worker took: spin (they are short), then sleep, so that a worker
        sharing this CPU can run. */
-    const int64_t until = vl_clock_monotonic_ns() + VL_WORKER_SPIN_NS;
+    const int64_t until = vl_clock_monotonic_ns() + VL_WORKER_READY_NS;
     while (__atomic_load_n(&w->completed, __ATOMIC_ACQUIRE) != count) {
         if (vl_clock_monotonic_ns() < until) {
             cpu_relax();

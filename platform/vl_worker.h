@@ -8,9 +8,9 @@
  * sleeps, and runs tasks itself; each thread takes the next free index until
  * none is left, so a worker that wakes late costs nothing but its share, and
  * the caller returns once every task has finished. Between loops the worker
- * spins for VL_WORKER_SPIN_NS (the update's two loops come microseconds
- * apart), then sleeps on a futex; a loop of count 0 (the update's first call)
- * wakes it early. Nothing is allocated after the start.
+ * spins briefly (VL_WORKER_SPIN_NS, VL_WORKER_READY_NS), then sleeps on a
+ * futex; a loop of count 0 (the update's first call) wakes it early. Nothing
+ * is allocated after the start.
  *
  * The core's blocks are fixed by the update's dimensions, never by who runs
  * them, so a run with the worker is bit-identical to one without.
@@ -28,8 +28,14 @@
 extern "C" {
 #endif
 
-/** How long the worker spins for the next loop before it sleeps, ns. */
-#define VL_WORKER_SPIN_NS 200000
+/** How long the worker spins for the next loop after running tasks, ns: the update's second loop
+ * follows its first within microseconds, and a longer spin would keep the worker's CPU from others
+ * (the replay's, at the same SCHED_FIFO priority) after the last one. */
+#define VL_WORKER_SPIN_NS 30000
+/** How long it spins after a wake-up that found no task (the update's announcement), ns: the
+ * update's serial part (P H^T, S and its factorization) runs meanwhile; also how long the caller
+ * spins for the worker's last tasks before it sleeps. */
+#define VL_WORKER_READY_NS 300000
 /** Stack the worker touches at start (Eigen's packing buffers live there), bytes. */
 #define VL_WORKER_STACK_PREFAULT (256 * 1024)
 
@@ -40,12 +46,16 @@ typedef struct {
     int priority; /**< SCHED_FIFO 1..99 for the worker; 0: the starting thread's scheduling */
 } vl_worker_options_t;
 
-/** The usage lines of the shared options, for a program's --help. */
-#define VL_WORKER_USAGE                                                                                 \
-    "  --threads N            1 (default): the update on one thread; 2: its whitening and covariance\n" \
-    "                         downdate shared with a worker thread (bit-identical results)\n"           \
-    "  --worker-cpu K         the worker's CPU (default: another CPU than the estimator's, when that\n" \
-    "                         one is pinned)\n"
+/**
+ * The usage lines of the shared options, for a program's --help: PAD (a string
+ * literal of spaces) moves the descriptions from column 19 to the program's own.
+ */
+#define VL_WORKER_USAGE(PAD)                                                                     \
+    "  --threads N      " PAD "1 (default): the update on one thread; 2: its whitening and\n"    \
+    "                   " PAD "covariance downdate shared with a worker thread (bit-identical\n" \
+    "                   " PAD "results)\n"                                                       \
+    "  --worker-cpu K   " PAD "the worker's CPU (default: another CPU than the estimator's,\n"   \
+    "                   " PAD "when that one is pinned)\n"
 
 /** The defaults: serial, the worker's CPU chosen at start. */
 void vl_worker_options_default(vl_worker_options_t *o);
