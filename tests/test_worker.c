@@ -145,8 +145,8 @@ void test_update_with_the_worker_equals_the_serial_update_bit_for_bit(void)
     /* Sizes on and off the block edges (32-column panels, 96-row blocks), up to the full window. */
     static const int cases[][2] = {{15, 1}, {51, 5}, {108, 12}, {183, 17}, {291, 40}, {387, 56}, {387, 128}};
     unsigned state = 7u;
-    uint64_t worker_before = 0, unused_loops, unused_tasks;
-    vl_worker_counts(&worker, &unused_loops, &unused_tasks, &worker_before);
+    uint64_t worker_before = 0, loops_before = 0, unused_tasks;
+    vl_worker_counts(&worker, &loops_before, &unused_tasks, &worker_before);
     for (size_t c = 0; c < sizeof(cases) / sizeof(cases[0]); ++c) {
         const int n = cases[c][0], k = cases[c][1];
         vl_random_covariance(P0, LD, n, G, &state);
@@ -162,8 +162,10 @@ void test_update_with_the_worker_equals_the_serial_update_bit_for_bit(void)
         TEST_ASSERT_EQUAL_INT_MESSAGE(0, memcmp(dx_serial, dx_parallel, sizeof(double) * (size_t)n), "correction");
         TEST_ASSERT_TRUE(memcmp(P_serial, P0, bytes) != 0); /* the update did something */
     }
-    uint64_t worker_after = 0;
-    vl_worker_counts(&worker, &unused_loops, &unused_tasks, &worker_after);
+    uint64_t worker_after = 0, loops_after = 0;
+    vl_worker_counts(&worker, &loops_after, &unused_tasks, &worker_after);
+    /* Only the two full-window cases hold 16 Mflop in their blocks: two loops each, the rest serial. */
+    TEST_ASSERT_EQUAL_UINT64(4, loops_after - loops_before);
     printf("the worker ran %llu blocks of these updates\n", (unsigned long long)(worker_after - worker_before));
 }
 

@@ -138,9 +138,20 @@ void downdate_task(void *arg, uint32_t index)
     subtract_product_bt(u->P->block(j, j, n - j, b), u->W->middleRows(j, n - j), u->W->middleRows(j, b));
 }
 
-void run_blocks(const vl_la_workspace_t *ws, vl_parallel_task_fn task, update_blocks *u, uint32_t count)
+/* Below this many flops in its blocks an update runs them on the calling thread: waking a
+ * worker and sharing the panels cost more than half of a median update saves (README "Two
+ * cores"), so only the costly updates, the tail, are shared. */
+constexpr double kParallelMinFlops = 16e6;
+
+bool worth_sharing(const vl_la_workspace_t *ws, Eigen::Index n, Eigen::Index m)
 {
-    if (ws->parallel_for != nullptr) {
+    const double nd = static_cast<double>(n), md = static_cast<double>(m);
+    return ws->parallel_for != nullptr && nd * (nd + 1.0) * md + nd * md * (md + 1.0) >= kParallelMinFlops;
+}
+
+void run_blocks(bool shared, const vl_la_workspace_t *ws, vl_parallel_task_fn task, update_blocks *u, uint32_t count)
+{
+    if (shared) {
         ws->parallel_for(ws->parallel_ctx, task, u, count);
         return;
     }
@@ -262,10 +273,11 @@ extern "C" int vl_la_single_correction(const double *Pbuf, int ld, int n, const 
 extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws)
 {
     no_heap_scope guard;
-    if (ws->parallel_for != nullptr) {
+    const Eigen::Index m = 3 * static_cast<Eigen::Index>(k);
+    const bool shared = worth_sharing(ws, n, m);
+    if (shared) {
         ws->parallel_for(ws->parallel_ctx, whiten_task, nullptr, 0); /* the blocks come after S's factorization */
     }
-    const Eigen::Index m = 3 * static_cast<Eigen::Index>(k);
     MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
     DenseMap PHt(ws->PHt, n, m);
     DenseMap S(ws->S, m, m);
@@ -310,11 +322,11 @@ extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs,
     }
     S.triangularView<Eigen::Lower>().solveInPlace(e);
     update_blocks blocks = {&P, &S, &PHt};
-    run_blocks(ws, whiten_task, &blocks, block_count(n, kProductRows));
+    run_blocks(shared, ws, whiten_task, &blocks, block_count(n, kProductRows));
     dx.noalias() = PHt * e;
 
     /* P - W W^T on the lower triangle, then mirrored, so P stays exactly symmetric. */
-    run_blocks(ws, downdate_task, &blocks, block_count(n, kPanel));
+    run_blocks(shared, ws, downdate_task, &blocks, block_count(n, kPanel));
     mirror_lower_to_upper(P);
     return 0;
 }

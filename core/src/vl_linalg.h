@@ -51,9 +51,9 @@ void vl_la_propagate(double *P, int ld, int n, const double *G, const double noi
  * observed columns to form P H^T, one Cholesky factorization of S = H P H^T + R
  * and a symmetric rank-m downdate P -= (P H^T L^-T)(P H^T L^-T)^T.
  * The whitening W = P H^T L^-T (by blocks of rows) and the downdate (by panels
- * of columns) go through ws->parallel_for when set: the blocks are fixed by the
- * dimensions alone and written by disjoint tasks, so P and dx are bit-identical
- * however many threads run them.
+ * of columns) go through ws->parallel_for when set and the update is costly
+ * (16 Mflop in them): the blocks are fixed by the dimensions alone and written
+ * by disjoint tasks, so P and dx are bit-identical however many threads run them.
  * @return 0 on success with ws->dx holding the correction; -1 when S is not
  *         positive definite (P is then unchanged).
  */

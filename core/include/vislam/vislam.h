@@ -147,7 +147,8 @@ typedef void (*vl_parallel_task_fn)(void *arg, uint32_t index);
  * Injected parallel loop: runs task(arg, i) once for every i in 0..count-1, on
  * any threads in any order, and returns when all have finished. The core cuts
  * its work into a fixed partition of disjoint blocks, the same whatever runs
- * them, so the results are bit-identical to the serial loop's. A call with
+ * them, so the results are bit-identical to the serial loop's. Only updates
+ * with 16 Mflop or more in those blocks use it (the costly ones). A call with
  * count 0 runs nothing: it announces loops soon (the update calls it first, so
  * that a sleeping worker wakes while the serial part runs). Called from
  * vl_update only; it must not allocate if the caller's step must not.
