@@ -21,12 +21,11 @@ typedef vl_obs_row_t vl_la_obs_t;
 
 /** Buffers the joint update may use; sizes in doubles. */
 typedef struct {
-    double *PHt; /**< >= n * m */
-    double *S;   /**< >= m * m */
-    double *dx;  /**< >= n: the state correction on success */
-    vl_parallel_for_fn
-        parallel_for;   /**< optional: runs the update's blocks (vl_config_t::parallel_for); NULL = serial */
-    void *parallel_ctx; /**< passed to parallel_for */
+    double *PHt;                     /**< >= n * m */
+    double *S;                       /**< >= m * m */
+    double *dx;                      /**< >= n: the state correction on success */
+    vl_parallel_for_fn parallel_for; /**< optional (vl_config_t::parallel_for); NULL = serial */
+    void *parallel_ctx;              /**< passed to parallel_for */
 } vl_la_workspace_t;
 
 /**

@@ -461,7 +461,7 @@ static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double
         so.quiet = 1;
         so.config_has_calibration = info.has_calibration;
         so.override_log = info.override_log;
-        so.worker = &g_worker;
+        so.worker = vl_worker_running(&g_worker) ? &g_worker : NULL;
         if (vl_session_init(&session, est, &cfg, &so) != VL_OK) {
             fprintf(stderr, "vislam-latency: vl_init refused the configuration\n");
             free(mem);

@@ -91,19 +91,20 @@ static void usage(FILE *f)
             "  --mode MODE          imu_only|mapping|slam (overrides the config file)\n"
             "  --max-landmarks N    active window, 1..%d (overrides the config file)\n"
             "  --stats-json FILE    counters (and timing with --timing) as JSON\n"
-            "  --timing             per-step wall time of vl_update and vl_propagate on stderr\n" VL_WORKER_USAGE(
-                "    ") "  --quiet              no summary and no core warnings on stderr\n"
-                        "  --print-config       print the effective configuration (INI) to stdout and exit\n"
-                        "  --version            print the version and exit\n"
-                        "  --help               this text\n"
-                        "\n"
-                        "Every event header is checked before it is read: a damaged spot (bad sync word, absurd\n"
-                        "length, junk) is reported with its file offset and skipped to the next valid event.\n"
-                        "\n"
-                        "Exit status: 0 done, 1 I/O error or no frame processed, 2 usage or configuration error,\n"
-                        "3 the log is damaged (unreadable spots, a cut end, payloads that do not decode, or no\n"
-                        "event at all); the outputs then hold every event that could be read.\n",
+            "  --timing             per-step wall time of vl_update and vl_propagate on stderr\n",
             VL_MAX_LANDMARKS);
+    fputs(VL_WORKER_USAGE("    "), f);
+    fprintf(f, "  --quiet              no summary and no core warnings on stderr\n"
+               "  --print-config       print the effective configuration (INI) to stdout and exit\n"
+               "  --version            print the version and exit\n"
+               "  --help               this text\n"
+               "\n"
+               "Every event header is checked before it is read: a damaged spot (bad sync word, absurd\n"
+               "length, junk) is reported with its file offset and skipped to the next valid event.\n"
+               "\n"
+               "Exit status: 0 done, 1 I/O error or no frame processed, 2 usage or configuration error,\n"
+               "3 the log is damaged (unreadable spots, a cut end, payloads that do not decode, or no\n"
+               "event at all); the outputs then hold every event that could be read.\n");
 }
 
 static int parse_args(int argc, char **argv, options_t *o)

@@ -172,50 +172,52 @@ static daemon_t g;
 
 static void usage(FILE *f)
 {
-    fprintf(
-        f,
-        "usage: vislamd [options]\n"
-        "Runs the vislam estimator on LCM messages: subscribes to " VL_CHANNEL_IMU ", " VL_CHANNEL_FEATURES
-        " and\n" VL_CHANNEL_CALIBRATION ", publishes " VL_CHANNEL_POSE " and " VL_CHANNEL_BOT_POSE
-        " (bot_core.pose_t) after every step and\n" VL_CHANNEL_STATUS
-        " once a second. Stops on SIGINT or SIGTERM after the current step.\n"
-        "\n"
-        "  --config FILE           INI configuration on top of the defaults (see tools/vislam.ini);\n"
-        "                          its [calibration] is used until the " VL_CHANNEL_CALIBRATION " message arrives\n"
-        "                          (or always, with override_log = true)\n"
-        "  --lcm-url URL           LCM provider, e.g. udpm://239.255.76.67:7667?ttl=0\n"
-        "                          (default: $LCM_DEFAULT_URL, else LCM's default)\n"
-        "  --trajectory FILE       TUM trajectory, one line per accepted frame (vislam-run's lines),\n"
-        "                          flushed line by line; appended to, never truncated: a restart\n"
-        "                          adds a '# ...' comment line and its run after the earlier one\n"
-        "  --step-samples FILE     at exit, one line per frame stepped: its utime (us) and the step's\n"
-        "                          time (ns: vl_session_input less what it publishes); kept in memory\n"
-        "                          for the first %d frames (vislam-latency's LCM overhead)\n"
-        "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
-        "                          of the last %d IMU intervals; %d us until known)\n"
-        "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
-        "  --cpu K                 pin to CPU K (a refusal is a warning)\n" VL_WORKER_USAGE(
-            "      ") "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
-                      "  --channel-prefix P      prefix every channel name below with P\n"
-                      "  --imu-channel NAME      default " VL_CHANNEL_IMU "\n"
-                      "  --features-channel NAME default " VL_CHANNEL_FEATURES "\n"
-                      "  --calib-channel NAME    default " VL_CHANNEL_CALIBRATION "\n"
-                      "  --pose-channel NAME     default " VL_CHANNEL_POSE "\n"
-                      "  --bot-pose-channel NAME default " VL_CHANNEL_BOT_POSE "\n"
-                      "  --status-channel NAME   default " VL_CHANNEL_STATUS "\n"
-                      "  --quiet                 only warnings and errors on stderr (no periodic status line, no\n"
-                      "                          exit summary)\n"
-                      "  --print-config          print the effective configuration (INI, as vislam-run) and exit\n"
-                      "  --version               print the version and exit\n"
-                      "  --help                  this text\n"
-                      "\n"
-                      "As a systemd Type=notify service (NOTIFY_SOCKET set) it reports READY=1 once subscribed,\n"
-                      "WATCHDOG=1 from the estimation loop every half WATCHDOG_USEC while LCM delivers, a STATUS=\n"
-                      "line once a second and STOPPING=1 on SIGINT/SIGTERM (the unit: share/vislam/vislamd.service).\n"
-                      "\n"
-                      "Exit status: 0 stopped by SIGINT/SIGTERM with every output flushed, 1 run-time failure\n"
-                      "(LCM, trajectory file), 2 usage or configuration error.\n",
-        STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US, STACK_PREFAULT_BYTES / 1024);
+    fprintf(f,
+            "usage: vislamd [options]\n"
+            "Runs the vislam estimator on LCM messages: subscribes to " VL_CHANNEL_IMU ", " VL_CHANNEL_FEATURES
+            " and\n" VL_CHANNEL_CALIBRATION ", publishes " VL_CHANNEL_POSE " and " VL_CHANNEL_BOT_POSE
+            " (bot_core.pose_t) after every step and\n" VL_CHANNEL_STATUS
+            " once a second. Stops on SIGINT or SIGTERM after the current step.\n"
+            "\n"
+            "  --config FILE           INI configuration on top of the defaults (see tools/vislam.ini);\n"
+            "                          its [calibration] is used until the " VL_CHANNEL_CALIBRATION " message arrives\n"
+            "                          (or always, with override_log = true)\n"
+            "  --lcm-url URL           LCM provider, e.g. udpm://239.255.76.67:7667?ttl=0\n"
+            "                          (default: $LCM_DEFAULT_URL, else LCM's default)\n"
+            "  --trajectory FILE       TUM trajectory, one line per accepted frame (vislam-run's lines),\n"
+            "                          flushed line by line; appended to, never truncated: a restart\n"
+            "                          adds a '# ...' comment line and its run after the earlier one\n"
+            "  --step-samples FILE     at exit, one line per frame stepped: its utime (us) and the step's\n"
+            "                          time (ns: vl_session_input less what it publishes); kept in memory\n"
+            "                          for the first %d frames (vislam-latency's LCM overhead)\n"
+            "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
+            "                          of the last %d IMU intervals; %d us until known)\n"
+            "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
+            "  --cpu K                 pin to CPU K (a refusal is a warning)\n",
+            STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US);
+    fputs(VL_WORKER_USAGE("      "), f);
+    fprintf(f,
+            "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
+            "  --channel-prefix P      prefix every channel name below with P\n"
+            "  --imu-channel NAME      default " VL_CHANNEL_IMU "\n"
+            "  --features-channel NAME default " VL_CHANNEL_FEATURES "\n"
+            "  --calib-channel NAME    default " VL_CHANNEL_CALIBRATION "\n"
+            "  --pose-channel NAME     default " VL_CHANNEL_POSE "\n"
+            "  --bot-pose-channel NAME default " VL_CHANNEL_BOT_POSE "\n"
+            "  --status-channel NAME   default " VL_CHANNEL_STATUS "\n"
+            "  --quiet                 only warnings and errors on stderr (no periodic status line, no\n"
+            "                          exit summary)\n"
+            "  --print-config          print the effective configuration (INI, as vislam-run) and exit\n"
+            "  --version               print the version and exit\n"
+            "  --help                  this text\n"
+            "\n"
+            "As a systemd Type=notify service (NOTIFY_SOCKET set) it reports READY=1 once subscribed,\n"
+            "WATCHDOG=1 from the estimation loop every half WATCHDOG_USEC while LCM delivers, a STATUS=\n"
+            "line once a second and STOPPING=1 on SIGINT/SIGTERM (the unit: share/vislam/vislamd.service).\n"
+            "\n"
+            "Exit status: 0 stopped by SIGINT/SIGTERM with every output flushed, 1 run-time failure\n"
+            "(LCM, trajectory file), 2 usage or configuration error.\n",
+            STACK_PREFAULT_BYTES / 1024);
 }
 
 static int parse_long(const char *opt, const char *s, long lo, long hi, long *out)
