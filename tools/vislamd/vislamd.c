@@ -195,7 +195,7 @@ static void usage(FILE *f)
             "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
             "  --cpu K                 pin to CPU K (a refusal is a warning)\n",
             STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US);
-    fputs(VL_WORKER_USAGE("      "), f);
+    fputs(VL_WORKER_USAGE("       "), f);
     fprintf(f,
             "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
             "  --channel-prefix P      prefix every channel name below with P\n"
