@@ -731,6 +731,8 @@ void vl_config_apply_preset(vl_config_t *cfg, vl_preset_t preset)
     fresh.landmark_sink_user = cfg->landmark_sink_user;
     fresh.log = cfg->log;
     fresh.log_user = cfg->log_user;
+    fresh.parallel_for = cfg->parallel_for;
+    fresh.parallel_ctx = cfg->parallel_ctx;
     *cfg = fresh;
 }
 

@@ -70,6 +70,10 @@ vl_status_t vl_session_init(vl_session_t *s, vl_estimator_t *est, const vl_confi
     s->cfg.landmark_sink_user = s;
     s->cfg.log = core_log;
     s->cfg.log_user = s;
+    if (opt->worker != NULL) {
+        s->cfg.parallel_for = vl_worker_parallel_for;
+        s->cfg.parallel_ctx = opt->worker;
+    }
     s->calib_source = "none";
     if (opt->config_has_calibration) {
         const vl_status_t st = vl_init(est, &s->cfg);

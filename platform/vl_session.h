@@ -35,6 +35,7 @@
 
 #include "vislam/vislam.h"
 #include "vl_log_reader.h"
+#include "vl_worker.h"
 
 #include "vislam_status_t.h"
 
@@ -115,6 +116,7 @@ typedef struct {
     int config_has_calibration; /**< nonzero: the configuration's calibration is the rig's (vl_config_file_info_t) */
     int override_log;           /**< nonzero: calibration messages are ignored (vl_config_file_info_t) */
     vl_session_callbacks_t callbacks;
+    vl_worker_t *worker; /**< optional: a started worker that shares the update (vl_worker_start); NULL = serial */
 } vl_session_options_t;
 
 /** Core log lines printed per level before the rate limit, then one in VL_SESSION_LOG_EVERY. */
@@ -145,7 +147,8 @@ typedef struct {
 
 /**
  * Starts a session on @p est (caller-owned, VL_ESTIMATOR_ALIGN-aligned).
- * @p cfg's landmark_sink and log are replaced by the session's. With
+ * @p cfg's landmark_sink and log are replaced by the session's, and its
+ * parallel_for by opt->worker's when that is set. With
  * opt->config_has_calibration the estimator is initialized at once.
  * @return VL_OK, VL_ERR_NULL, or vl_init's refusal (VL_ERR_CONFIG, VL_ERR_MISALIGNED)
  */

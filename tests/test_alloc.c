@@ -16,6 +16,7 @@
 #include "vislam/vislam.h"
 #include "vl_alloc_counter.h"
 #include "vl_log_reader.h"
+#include "vl_worker.h"
 
 /* ------------------------------------------------------------ the counter */
 
@@ -47,7 +48,8 @@ static void count_landmark(void *user, const vl_landmark_t *lm)
     ((alloc_run_t *)user)->landmarks++;
 }
 
-static int run_log(const char *path, alloc_run_t *out)
+/* With a started worker, the updates share their blocks with it (NULL: serial). */
+static int run_log(const char *path, vl_worker_t *worker, alloc_run_t *out)
 {
     char err[256];
     memset(out, 0, sizeof(*out));
@@ -66,6 +68,10 @@ static int run_log(const char *path, alloc_run_t *out)
             cfg.calibration = ev.calibration;
             cfg.landmark_sink = count_landmark;
             cfg.landmark_sink_user = out;
+            if (worker != NULL) {
+                cfg.parallel_for = vl_worker_parallel_for;
+                cfg.parallel_ctx = worker;
+            }
             TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
             initialized = 1;
             continue;
@@ -104,7 +110,7 @@ void test_interposer_counts_allocations(void)
     TEST_ASSERT_EQUAL_UINT64(2, calls_now() - before);
 }
 
-static void check_log(const char *path)
+static void check_log_with(const char *path, vl_worker_t *worker)
 {
     alloc_run_t run;
     if (access(path, R_OK) != 0) {
@@ -112,7 +118,7 @@ static void check_log(const char *path)
         snprintf(msg, sizeof(msg), "%s not found: ../shared/data is absent, real-data allocation check skipped", path);
         TEST_IGNORE_MESSAGE(msg);
     }
-    TEST_ASSERT_EQUAL_INT(0, run_log(path, &run));
+    TEST_ASSERT_EQUAL_INT(0, run_log(path, worker, &run));
     printf("%s: %llu steps, %llu landmarks mapped, %llu heap allocations inside steps\n", path,
            (unsigned long long)run.steps, (unsigned long long)run.landmarks, (unsigned long long)run.allocations);
     TEST_ASSERT_TRUE(run.steps > 100);
@@ -120,9 +126,32 @@ static void check_log(const char *path)
     TEST_ASSERT_EQUAL_UINT64(0, run.allocations);
 }
 
+static void check_log(const char *path)
+{
+    check_log_with(path, NULL);
+}
+
 void test_steps_allocate_nothing_on_the_sample_log(void)
 {
     check_log(VL_SOURCE_DIR "/data/sample.lcmlog");
+}
+
+/* The worker is started (its thread and stack allocated) before counting; the steps then hand it
+   blocks and wake it, which must not allocate either. */
+void test_steps_allocate_nothing_with_the_worker(void)
+{
+    static vl_worker_t worker;
+    vl_worker_options_t o;
+    vl_worker_options_default(&o);
+    o.threads = 2;
+    TEST_ASSERT_EQUAL_INT(0, vl_worker_start(&worker, &o, NULL, 0));
+    TEST_ASSERT_TRUE(vl_worker_running(&worker));
+    check_log_with(VL_SOURCE_DIR "/data/sample.lcmlog", &worker);
+    uint64_t loops, tasks, worker_tasks;
+    vl_worker_counts(&worker, &loops, &tasks, &worker_tasks);
+    vl_worker_stop(&worker);
+    TEST_ASSERT_TRUE(loops > 100);
+    TEST_ASSERT_TRUE(worker_tasks > 0);
 }
 
 void test_steps_allocate_nothing_on_0034(void)
@@ -140,6 +169,7 @@ int main(void)
     UNITY_BEGIN();
     RUN_TEST(test_interposer_counts_allocations);
     RUN_TEST(test_steps_allocate_nothing_on_the_sample_log);
+    RUN_TEST(test_steps_allocate_nothing_with_the_worker);
     RUN_TEST(test_steps_allocate_nothing_on_0034);
     RUN_TEST(test_steps_allocate_nothing_on_0027);
     return UNITY_END();

@@ -87,6 +87,8 @@ static void assert_config_equal(const vl_config_t *a, const vl_config_t *b)
     TEST_ASSERT_EQUAL_PTR(a->landmark_sink_user, b->landmark_sink_user);
     TEST_ASSERT_EQUAL_PTR(a->log, b->log);
     TEST_ASSERT_EQUAL_PTR(a->log_user, b->log_user);
+    TEST_ASSERT_EQUAL_PTR(a->parallel_for, b->parallel_for);
+    TEST_ASSERT_EQUAL_PTR(a->parallel_ctx, b->parallel_ctx);
 }
 
 /* Loads text on top of the defaults and expects a failure whose message holds every needle. */
@@ -247,6 +249,7 @@ void test_vl_config_load_ini_preset_is_applied_before_other_keys(void)
     vl_config_t cfg;
     vl_config_default(&cfg);
     cfg.log_user = &cfg; /* callbacks survive a preset */
+    cfg.parallel_ctx = &seed;
     vl_config_file_info_t info;
     /* preset after a key: the key still wins */
     vl_status_t s = vl_config_load_ini_ex(write_temp("[noise]\npixel = 9\n[estimator]\npreset = seed\n"), &cfg, &info,
@@ -257,6 +260,7 @@ void test_vl_config_load_ini_preset_is_applied_before_other_keys(void)
     TEST_ASSERT_EQUAL_DOUBLE(seed.linear_velocity_noise, cfg.linear_velocity_noise);
     TEST_ASSERT_EQUAL_UINT32(seed.ransac_hypotheses, cfg.ransac_hypotheses);
     TEST_ASSERT_EQUAL_PTR(&cfg, cfg.log_user);
+    TEST_ASSERT_EQUAL_PTR(&seed, cfg.parallel_ctx);
 }
 
 void test_vl_config_load_ini_unknown_key_names_file_line_key(void)

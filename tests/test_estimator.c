@@ -428,7 +428,7 @@ void test_la_update_equals_dense_kalman_formula(void)
         }
     }
 
-    vl_la_workspace_t ws = {PHt, S, dx};
+    vl_la_workspace_t ws = {PHt, S, dx, NULL, NULL};
     TEST_ASSERT_EQUAL_INT(0, vl_la_update(P, n, n, obs, k, &ws));
     for (int a = 0; a < n; ++a) {
         TEST_ASSERT_DOUBLE_WITHIN(1e-9, dxref[a], dx[a]);
@@ -450,7 +450,7 @@ void test_la_update_refuses_indefinite_innovation_covariance(void)
     obs.H_landmark[0] = obs.H_landmark[4] = obs.H_landmark[8] = 1.0;
     obs.noise_var[0] = obs.noise_var[1] = obs.noise_var[2] = -1e6;
     obs.landmark_col = VL_CORE_DIM;
-    vl_la_workspace_t ws = {PHt, S, dx};
+    vl_la_workspace_t ws = {PHt, S, dx, NULL, NULL};
     TEST_ASSERT_EQUAL_INT(-1, vl_la_update(P, n, n, &obs, 1, &ws));
     TEST_ASSERT_EQUAL_MEMORY(P0, P, sizeof(P));
 }

@@ -83,8 +83,9 @@ bool cholesky_in_place(DenseMap &S)
     return true;
 }
 
-/* W <- W L^-T for the lower factor L held in S, one panel of columns at a time. */
-void solve_right_lower_transpose(const DenseMap &S, DenseMap &W)
+/* W <- W L^-T for the lower factor L held in S, one panel of columns at a time.
+ * Each row of W is solved on its own, so any block of rows can be done apart. */
+template <typename WT> void solve_right_lower_transpose(const DenseMap &S, WT &&W)
 {
     const Eigen::Index m = S.rows();
     for (Eigen::Index k = 0; k < m; k += kPanel) {
@@ -98,13 +99,64 @@ void solve_right_lower_transpose(const DenseMap &S, DenseMap &W)
     }
 }
 
-/* Lower triangle of P -= W W^T, one panel of columns at a time. */
-void downdate_lower(MatMap &P, const DenseMap &W)
+/*
+ * The two O(n^2 m) parts of the update as fixed blocks, each written by one
+ * task only: the whitening by blocks of kProductRows rows of W (so a block's
+ * product slabs are those of the whole), the downdate by panels of kPanel
+ * columns of P's lower triangle (rows j..n of columns j..j+b). Panel j costs
+ * (n - j) b m: the panels come largest first, so threads that take the next
+ * free index (vl_parallel_for_fn) share them out longest-first and finish
+ * within about one panel of each other.
+ */
+struct update_blocks {
+    MatMap *P;
+    const DenseMap *S;
+    DenseMap *W;
+};
+
+uint32_t block_count(Eigen::Index size, Eigen::Index block)
 {
-    const Eigen::Index n = P.rows();
-    for (Eigen::Index j = 0; j < n; j += kPanel) {
-        const Eigen::Index b = (n - j < kPanel) ? n - j : kPanel;
-        subtract_product_bt(P.block(j, j, n - j, b), W.middleRows(j, n - j), W.middleRows(j, b));
+    return static_cast<uint32_t>((size + block - 1) / block);
+}
+
+void whiten_task(void *arg, uint32_t index)
+{
+    const update_blocks *u = static_cast<const update_blocks *>(arg);
+    const Eigen::Index n = u->W->rows();
+    const Eigen::Index r = static_cast<Eigen::Index>(index) * kProductRows;
+    const Eigen::Index h = (n - r < kProductRows) ? n - r : kProductRows;
+    solve_right_lower_transpose(*u->S, u->W->middleRows(r, h));
+}
+
+/* Lower triangle of P -= W W^T for one panel of columns. */
+void downdate_task(void *arg, uint32_t index)
+{
+    const update_blocks *u = static_cast<const update_blocks *>(arg);
+    const Eigen::Index n = u->P->rows();
+    const Eigen::Index j = static_cast<Eigen::Index>(index) * kPanel;
+    const Eigen::Index b = (n - j < kPanel) ? n - j : kPanel;
+    subtract_product_bt(u->P->block(j, j, n - j, b), u->W->middleRows(j, n - j), u->W->middleRows(j, b));
+}
+
+/* Below this many flops in its blocks an update runs them on the calling thread: waking a
+ * worker and sharing the panels cost more than half of a median update saves (README "Two
+ * cores"), so only the costly updates, the tail, are shared. */
+constexpr double kParallelMinFlops = 16e6;
+
+bool worth_sharing(const vl_la_workspace_t *ws, Eigen::Index n, Eigen::Index m)
+{
+    const double nd = static_cast<double>(n), md = static_cast<double>(m);
+    return ws->parallel_for != nullptr && nd * (nd + 1.0) * md + nd * md * (md + 1.0) >= kParallelMinFlops;
+}
+
+void run_blocks(bool shared, const vl_la_workspace_t *ws, vl_parallel_task_fn task, update_blocks *u, uint32_t count)
+{
+    if (shared) {
+        ws->parallel_for(ws->parallel_ctx, task, u, count);
+        return;
+    }
+    for (uint32_t i = 0; i < count; ++i) {
+        task(u, i);
     }
 }
 
@@ -222,6 +274,10 @@ extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs,
 {
     no_heap_scope guard;
     const Eigen::Index m = 3 * static_cast<Eigen::Index>(k);
+    const bool shared = worth_sharing(ws, n, m);
+    if (shared) {
+        ws->parallel_for(ws->parallel_ctx, whiten_task, nullptr, 0); /* the blocks come after S's factorization */
+    }
     MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
     DenseMap PHt(ws->PHt, n, m);
     DenseMap S(ws->S, m, m);
@@ -265,11 +321,12 @@ extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs,
         e.segment<3>(3 * i) = Eigen::Map<const Eigen::Vector3d>(obs[i].residual);
     }
     S.triangularView<Eigen::Lower>().solveInPlace(e);
-    solve_right_lower_transpose(S, PHt);
+    update_blocks blocks = {&P, &S, &PHt};
+    run_blocks(shared, ws, whiten_task, &blocks, block_count(n, kProductRows));
     dx.noalias() = PHt * e;
 
     /* P - W W^T on the lower triangle, then mirrored, so P stays exactly symmetric. */
-    downdate_lower(P, PHt);
+    run_blocks(shared, ws, downdate_task, &blocks, block_count(n, kPanel));
     mirror_lower_to_upper(P);
     return 0;
 }

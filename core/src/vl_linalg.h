@@ -21,9 +21,11 @@ typedef vl_obs_row_t vl_la_obs_t;
 
 /** Buffers the joint update may use; sizes in doubles. */
 typedef struct {
-    double *PHt; /**< >= n * m */
-    double *S;   /**< >= m * m */
-    double *dx;  /**< >= n: the state correction on success */
+    double *PHt;                     /**< >= n * m */
+    double *S;                       /**< >= m * m */
+    double *dx;                      /**< >= n: the state correction on success */
+    vl_parallel_for_fn parallel_for; /**< optional (vl_config_t::parallel_for); NULL = serial */
+    void *parallel_ctx;              /**< passed to parallel_for */
 } vl_la_workspace_t;
 
 /**
@@ -47,6 +49,10 @@ void vl_la_propagate(double *P, int ld, int n, const double *G, const double noi
  * Joint EKF update with k stereo observations (m = 3k rows), touching only the
  * observed columns to form P H^T, one Cholesky factorization of S = H P H^T + R
  * and a symmetric rank-m downdate P -= (P H^T L^-T)(P H^T L^-T)^T.
+ * The whitening W = P H^T L^-T (by blocks of rows) and the downdate (by panels
+ * of columns) go through ws->parallel_for when set and the update is costly
+ * (16 Mflop in them): the blocks are fixed by the dimensions alone and written
+ * by disjoint tasks, so P and dx are bit-identical however many threads run them.
  * @return 0 on success with ws->dx holding the correction; -1 when S is not
  *         positive definite (P is then unchanged).
  */

@@ -45,6 +45,7 @@
 #include "vl_log_reader.h"
 #include "vl_rt.h"
 #include "vl_session.h"
+#include "vl_worker.h"
 
 #define EXIT_INCOMPLETE 1
 #define EXIT_USAGE 2
@@ -75,6 +76,7 @@ typedef struct {
     const char *busy_poll_us; /* end to end: vislamd's and the replay's --busy-poll-us, as given */
     int lcm_receive_thread;   /* end to end: both receive through liblcm's thread */
     int quiet;
+    vl_worker_options_t worker;
 } options_t;
 
 /* One timed vl_update. */
@@ -93,6 +95,8 @@ typedef struct {
 
 static options_t opt;
 static char self_dir[PATH_LEN];
+/* The in-process pass's worker (--threads 2), started once, after this thread's CPU and priority. */
+static vl_worker_t g_worker;
 
 static void usage(FILE *f)
 {
@@ -109,6 +113,9 @@ static void usage(FILE *f)
                "  --rt-priority N     SCHED_FIFO priority 1..99 for the estimator, vislamd and the publisher\n"
                "                      (the jitter probe runs at N+1); a refusal is a warning\n"
                "  --load              a busy-loop and memory-churn child on the other CPU while measuring\n"
+               "  --threads N         1 (default) or 2: the update shared with a worker thread, in-process and\n"
+               "                      in vislamd (the worker at --rt-priority too)\n"
+               "  --worker-cpu K      the worker's CPU (default: --other-cpu, beside the publisher and --load)\n"
                "  --no-e2e            in-process only (no vislamd, no LCM)\n"
                "  --lcm-url URL       LCM provider of the end-to-end pass (default: $LCM_DEFAULT_URL, else\n"
                "                      LCM's default); udpm needs a multicast route (see the README)\n"
@@ -161,11 +168,17 @@ static int parse_args(int argc, char **argv, options_t *o)
     o->e2e = 1;
     o->probe = 1;
     o->timeout_ms = 2000;
+    vl_worker_options_default(&o->worker);
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
         const char *v = (i + 1 < argc) ? argv[i + 1] : NULL;
         long n = 0;
-        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+        const int worker_option = vl_worker_parse_option("vislam-latency", a, v, &o->worker);
+        if (worker_option < 0) {
+            return -1;
+        } else if (worker_option > 0) {
+            ++i;
+        } else if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             exit(0);
         } else if (strcmp(a, "--version") == 0) {
@@ -255,6 +268,9 @@ static int parse_args(int argc, char **argv, options_t *o)
     }
     if (o->other_cpu < 0) {
         o->other_cpu = ncpu > 1 ? (int)((o->cpu + 1) % ncpu) : 0;
+    }
+    if (o->worker.cpu < 0) {
+        o->worker.cpu = o->other_cpu;
     }
     return 0;
 }
@@ -469,6 +485,7 @@ static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double
         so.quiet = 1;
         so.config_has_calibration = info.has_calibration;
         so.override_log = info.override_log;
+        so.worker = vl_worker_running(&g_worker) ? &g_worker : NULL;
         if (vl_session_init(&session, est, &cfg, &so) != VL_OK) {
             fprintf(stderr, "vislam-latency: vl_init refused the configuration\n");
             free(mem);
@@ -814,8 +831,9 @@ static void run_e2e(const char *dir, e2e_t *e)
         e->failed = 1;
         return;
     }
-    char cpu[16], prio[16], timeout[24];
+    char cpu[16], prio[16], timeout[24], worker_cpu[16];
     snprintf(cpu, sizeof(cpu), "%d", opt.cpu);
+    snprintf(worker_cpu, sizeof(worker_cpu), "%d", opt.worker.cpu);
     snprintf(prio, sizeof(prio), "%d", opt.rt_priority);
     snprintf(timeout, sizeof(timeout), "%ld", opt.timeout_ms);
     for (int pass = 0; pass < opt.passes; ++pass) {
@@ -834,7 +852,7 @@ static void run_e2e(const char *dir, e2e_t *e)
         snprintf(name, sizeof(name), "steps_%d.txt", pass);
         path_join(steps, sizeof(steps), dir, name);
         unlink(traj); /* vislamd appends */
-        const char *dargv[20];
+        const char *dargv[28];
         int k = 0;
         dargv[k++] = vislamd;
         dargv[k++] = "--trajectory";
@@ -861,6 +879,12 @@ static void run_e2e(const char *dir, e2e_t *e)
         }
         if (opt.lcm_receive_thread) {
             dargv[k++] = "--lcm-receive-thread";
+        }
+        if (opt.worker.threads > 1) {
+            dargv[k++] = "--threads";
+            dargv[k++] = "2";
+            dargv[k++] = "--worker-cpu";
+            dargv[k++] = worker_cpu;
         }
         dargv[k] = NULL;
         const char *rargv[28];
@@ -1076,6 +1100,9 @@ typedef struct {
     double callgrind;
     long cyclictest_max;
     int rt_granted;
+    int worker_running;    /* the in-process pass shared its updates with a worker */
+    double worker_share;   /* of the blocks handed out, those the worker ran */
+    uint64_t worker_loops; /* parallel loops handed out (two per joint update) */
 } results_t;
 
 static void write_work(FILE *f, const vl_work_t *w)
@@ -1120,6 +1147,10 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
             opt.rate_max ? "max" : "sensor", opt.cpu, opt.other_cpu, opt.rt_priority);
     fprintf(f, "  \"rt_granted\": %s,\n  \"load\": %s,\n  \"steps\": %zu,\n  \"budget_us\": %ld,\n",
             res->rt_granted ? "true" : "false", opt.load ? "true" : "false", nsteps, res->budget_us);
+    fprintf(f, "  \"threads\": %d,\n  \"worker_cpu\": ", res->worker_running ? 2 : 1);
+    fprintf(f, res->worker_running ? "%d" : "null", opt.worker.cpu);
+    fprintf(f, ",\n  \"worker_share\": %.4f,\n  \"worker_loops\": %" PRIu64 ",\n", res->worker_share,
+            res->worker_loops);
     fprintf(f, "  \"overruns\": %" PRIu64 ",\n  \"e2e_overruns\": %" PRIu64 ",\n", res->overruns, res->e2e_overruns);
     json_summary(f, "step_us", &res->step, ",");
     json_summary(f, "propagate_us", &res->prop, ",");
@@ -1319,6 +1350,16 @@ int main(int argc, char **argv)
         }
     }
 
+    if (opt.worker.threads > 1) {
+        opt.worker.priority = res.rt_granted ? opt.rt_priority : 0;
+        if (vl_worker_start(&g_worker, &opt.worker, msg, sizeof(msg)) != 0) {
+            fprintf(stderr, "vislam-latency: warning: %s\n", msg);
+        } else if (!opt.quiet) {
+            fprintf(stderr, "vislam-latency: %s\n", msg);
+        }
+        res.worker_running = vl_worker_running(&g_worker);
+    }
+
     size_t nsteps = 0, nprop = 0;
     if (!opt.quiet) {
         fprintf(stderr, "vislam-latency: %s: %zu frames x %d pass(es), rate %s, CPU %d (other %d)%s\n", opt.log_path,
@@ -1326,6 +1367,12 @@ int main(int argc, char **argv)
                 opt.load ? ", load on the other CPU" : "");
     }
     const int ip_rc = run_in_process(&lg, steps, &nsteps, prop_us, &nprop);
+    {
+        uint64_t tasks = 0, worker_tasks = 0;
+        vl_worker_counts(&g_worker, &res.worker_loops, &tasks, &worker_tasks);
+        res.worker_share = tasks > 0 ? (double)worker_tasks / (double)tasks : 0.0;
+    }
+    vl_worker_stop(&g_worker);
     release_rt(cpus);
     /* The end-to-end pass's processes pin and schedule themselves; this thread only waits. */
     static e2e_t e2e;
@@ -1399,6 +1446,12 @@ int main(int argc, char **argv)
     fprintf(stderr, "vislam-latency: %s, window %u, %zu steps (%zu frames x %d), rate %s, CPU %d%s%s\n", opt.log_path,
             (unsigned)res.window, nsteps, lg.frames, opt.passes, opt.rate_max ? "max" : "sensor", opt.cpu,
             res.rt_granted ? ", SCHED_FIFO" : "", opt.load ? ", loaded" : "");
+    if (res.worker_running) {
+        fprintf(stderr, "  threads: 2 (worker on CPU %d ran %.1f%% of the update's blocks in-process)\n",
+                opt.worker.cpu, 100.0 * res.worker_share);
+    } else {
+        fprintf(stderr, "  threads: 1\n");
+    }
     print_summary("step (vl_update, in-process)", &res.step);
     print_summary("vl_propagate (in-process)", &res.prop);
     if (opt.e2e) {

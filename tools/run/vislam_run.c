@@ -45,6 +45,7 @@ typedef struct {
     int quiet;
     int timing;
     int print_config;
+    vl_worker_options_t worker;
 } options_t;
 
 /* Compact map entry: what the PLY needs. */
@@ -97,28 +98,37 @@ static void usage(FILE *f)
             "  --mode MODE          imu_only|mapping|slam (overrides the config file)\n"
             "  --max-landmarks N    active window, 1..%d (overrides the config file)\n"
             "  --stats-json FILE    counters (and timing with --timing) as JSON\n"
-            "  --timing             per-step wall time of vl_update and vl_propagate on stderr\n"
-            "  --quiet              no summary and no core warnings on stderr\n"
-            "  --print-config       print the effective configuration (INI) to stdout and exit\n"
-            "  --version            print the version and exit\n"
-            "  --help               this text\n"
-            "\n"
-            "Every event header is checked before it is read: a damaged spot (bad sync word, absurd\n"
-            "length, junk) is reported with its file offset and skipped to the next valid event.\n"
-            "\n"
-            "Exit status: 0 done, 1 I/O error or no frame processed, 2 usage or configuration error,\n"
-            "3 the log is damaged (unreadable spots, a cut end, payloads that do not decode, or no\n"
-            "event at all); the outputs then hold every event that could be read.\n",
+            "  --timing             per-step wall time of vl_update and vl_propagate on stderr\n",
             VL_MAX_LANDMARKS);
+    fputs(VL_WORKER_USAGE("    "), f);
+    fprintf(f, "  --quiet              no summary and no core warnings on stderr\n"
+               "  --print-config       print the effective configuration (INI) to stdout and exit\n"
+               "  --version            print the version and exit\n"
+               "  --help               this text\n"
+               "\n"
+               "Every event header is checked before it is read: a damaged spot (bad sync word, absurd\n"
+               "length, junk) is reported with its file offset and skipped to the next valid event.\n"
+               "\n"
+               "Exit status: 0 done, 1 I/O error or no frame processed, 2 usage or configuration error,\n"
+               "3 the log is damaged (unreadable spots, a cut end, payloads that do not decode, or no\n"
+               "event at all); the outputs then hold every event that could be read.\n");
 }
 
 static int parse_args(int argc, char **argv, options_t *o)
 {
     memset(o, 0, sizeof(*o));
+    vl_worker_options_default(&o->worker);
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
         const char **target = NULL;
-        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+        const int worker_option =
+            vl_worker_parse_option("vislam-run", a, i + 1 < argc ? argv[i + 1] : NULL, &o->worker);
+        if (worker_option != 0) {
+            if (worker_option < 0) {
+                return -1;
+            }
+            ++i;
+        } else if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             exit(0);
         } else if (strcmp(a, "--version") == 0) {
@@ -581,9 +591,15 @@ int main(int argc, char **argv)
         return 1;
     }
 
+    static vl_worker_t worker;
+    char wmsg[256];
+    if (vl_worker_start(&worker, &o.worker, wmsg, sizeof(wmsg)) != 0 || (o.worker.threads > 1 && !o.quiet)) {
+        fprintf(stderr, "vislam-run: %s\n", wmsg);
+    }
     vl_session_options_t so;
     memset(&so, 0, sizeof(so));
     so.program = "vislam-run";
+    so.worker = &worker;
     so.quiet = o.quiet;
     so.config_has_calibration = info.has_calibration;
     so.override_log = info.override_log;
@@ -593,6 +609,7 @@ int main(int argc, char **argv)
     sinks.est = est;
     if (vl_session_init(&session, est, &cfg, &so) != VL_OK) {
         fprintf(stderr, "vislam-run: vl_init refused the configuration\n");
+        vl_worker_stop(&worker);
         close_optional(&sinks);
         vl_trajectory_close(&sinks.traj);
         vl_log_reader_close(&reader);
@@ -617,6 +634,7 @@ int main(int argc, char **argv)
         }
     }
     vl_session_flush(&session);
+    vl_worker_stop(&worker);
 
     int io_error = 0;
     if (vl_trajectory_close(&sinks.traj) != 0) {

@@ -65,6 +65,7 @@ def plot(report, out_path):
         f"{report.get('log', '')}: window {report.get('window')}, {report.get('steps')} steps, "
         f"rate {report.get('rate')}, CPU {report.get('cpu')}"
         f"{', SCHED_FIFO' if report.get('rt_granted') else ''}{', loaded' if report.get('load') else ''}"
+        f"{', 2 threads' if report.get('threads') == 2 else ''}"
     )
     fig.tight_layout()
     fig.savefig(out_path, dpi=110)

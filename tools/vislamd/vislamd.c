@@ -93,6 +93,7 @@ typedef struct {
     int no_mlock;
     int quiet;
     int print_config;
+    vl_worker_options_t worker;
 } options_t;
 
 enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_COUNT };
@@ -215,7 +216,10 @@ static void usage(FILE *f)
             "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
             "                          of the last %d IMU intervals; %d us until known)\n"
             "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
-            "  --cpu K                 pin to CPU K (a refusal is a warning)\n"
+            "  --cpu K                 pin to CPU K (a refusal is a warning)\n",
+            STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US);
+    fputs(VL_WORKER_USAGE("       "), f);
+    fprintf(f,
             "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
             "  --busy-poll-us N        after each message, spin on the socket up to N us (0..%d) for the\n"
             "                          next before sleeping: trades a CPU for the wake-up (default 0)\n"
@@ -241,7 +245,7 @@ static void usage(FILE *f)
             "\n"
             "Exit status: 0 stopped by SIGINT/SIGTERM with every output flushed, 1 run-time failure\n"
             "(LCM, trajectory file), 2 usage or configuration error.\n",
-            STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US, STACK_PREFAULT_BYTES / 1024, BUSY_POLL_MAX_US);
+            STACK_PREFAULT_BYTES / 1024, BUSY_POLL_MAX_US);
 }
 
 static int parse_long(const char *opt, const char *s, long lo, long hi, long *out)
@@ -279,8 +283,17 @@ static int parse_args(int argc, char **argv, options_t *o)
 {
     memset(o, 0, sizeof(*o));
     o->cpu = -1;
+    vl_worker_options_default(&o->worker);
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
+        const int worker_option = vl_worker_parse_option("vislamd", a, i + 1 < argc ? argv[i + 1] : NULL, &o->worker);
+        if (worker_option != 0) {
+            if (worker_option < 0) {
+                return -1;
+            }
+            ++i;
+            continue;
+        }
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             exit(0);
@@ -982,10 +995,21 @@ int main(int argc, char **argv)
         return EXIT_RUNTIME;
     }
     realtime_setup(&d->opt);
+    /* After the daemon's own CPU and priority: the worker avoids that CPU and takes that priority. */
+    static vl_worker_t worker;
+    {
+        char msg[256];
+        d->opt.worker.priority = d->opt.rt_priority;
+        if (vl_worker_start(&worker, &d->opt.worker, msg, sizeof(msg)) != 0 ||
+            (d->opt.worker.threads > 1 && !d->opt.quiet)) {
+            fprintf(stderr, "vislamd: %s\n", msg);
+        }
+    }
 
     vl_session_options_t so;
     memset(&so, 0, sizeof(so));
     so.program = "vislamd";
+    so.worker = &worker;
     so.quiet = d->opt.quiet;
     so.config_has_calibration = d->info.has_calibration;
     so.override_log = d->info.override_log;
@@ -1120,6 +1144,7 @@ int main(int argc, char **argv)
     }
     vl_lcm_rx_close(&d->rx);
     lcm_destroy(d->lcm);
+    vl_worker_stop(&worker);
     vl_notify_close(&d->notify);
     return exit_code;
 }

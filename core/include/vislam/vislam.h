@@ -140,6 +140,21 @@ typedef enum { VL_LOG_DEBUG = 0, VL_LOG_INFO = 1, VL_LOG_WARN = 2, VL_LOG_ERROR 
 /** Injected logger; the core formats nothing itself beyond a short fixed message. */
 typedef void (*vl_log_fn)(void *user, vl_log_level_t level, int64_t utime, const char *message);
 
+/** One task of a parallel loop: the work of index @p index (0..count-1) of vl_parallel_for_fn. */
+typedef void (*vl_parallel_task_fn)(void *arg, uint32_t index);
+
+/**
+ * Injected parallel loop: runs task(arg, i) once for every i in 0..count-1, on
+ * any threads in any order, and returns when all have finished. The core cuts
+ * its work into a fixed partition of disjoint blocks, the same whatever runs
+ * them, so the results are bit-identical to the serial loop's. Only updates
+ * with 16 Mflop or more in those blocks use it (the costly ones). A call with
+ * count 0 runs nothing: it announces loops soon (the update calls it first, so
+ * that a sleeping worker wakes while the serial part runs). Called from
+ * vl_update only; it must not allocate if the caller's step must not.
+ */
+typedef void (*vl_parallel_for_fn)(void *ctx, vl_parallel_task_fn task, void *arg, uint32_t count);
+
 /** Largest max_time_jump and max_imu_silence, s (their microseconds stay far inside int64). */
 #define VL_MAX_TIME_LIMIT 1e9
 
@@ -164,6 +179,8 @@ typedef struct {
     void *landmark_sink_user;          /**< passed to landmark_sink */
     vl_log_fn log;                     /**< optional logger */
     void *log_user;                    /**< passed to log */
+    vl_parallel_for_fn parallel_for;   /**< optional: runs the update's blocks on more threads; NULL = serial */
+    void *parallel_ctx;                /**< passed to parallel_for */
 } vl_config_t;
 
 /** One IMU velocity sample. */
