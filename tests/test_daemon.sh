@@ -99,6 +99,8 @@ check "VISLAM_POSE sequence numbers 0..399 in order" eq "$(value "$A" pose.seque
 check "POSE (bot_core.pose_t): one per VISLAM_POSE, same utime and position" eq "$(value "$A" bot.count)/$(value "$A" bot.matches_pose)" "400/1"
 check "no undecodable message" eq "$(value "$A" pose.decode_errors)/$(value "$A" bot.decode_errors)/$(value "$A" status.decode_errors)" "0/0/0"
 check "replay counted 400 poses" grep -q '"poses_received": 400' "$OUT/a.replay.json"
+check "daemon A's receiver: every input handed on, nothing dropped" awk '/lcm receive: messages/ {
+  gsub(",", ""); ok = ($4 >= 400 && $11 == 0 && $13 == 0)} END {exit !ok}' "$OUT/a.daemon.err"
 check "status published at least twice, wall-clock utime increasing" test "$(value "$A" status.count)" -ge 2 -a "$(value "$A" status.utime_increasing)" = 1
 check "first status: waiting for calibration" eq "$(value "$A" status.first.health)" 1
 check "final status: imu_in 200, frames_in 200, poses_out 400, rejected 0, steps 400" \

@@ -648,6 +648,11 @@ static void print_summary(const replay_t *r, double wall_s, int interrupted)
             "  answers accepted %" PRIu64 ", foreign poses %" PRIu64 " (non-finite %" PRIu64
             "), daemon restarts %" PRIu64 ", calibrations re-published %" PRIu64 "\n",
             r->poses_accepted, r->poses_foreign, r->poses_non_finite, r->daemon_restarts, r->calib_resent);
+    if (r->direct && (r->rx.fragments != 0 || r->rx.malformed != 0)) {
+        /* The direct receiver hands on single-datagram messages only: the rest is counted. */
+        fprintf(stderr, "  lcm receive: fragmented (dropped) %" PRIu64 ", malformed %" PRIu64 "\n", r->rx.fragments,
+                r->rx.malformed);
+    }
     if (vl_log_guard_damaged(&r->guard) || r->guard.events == 0) {
         fprintf(stderr, "  log damaged: %" PRIu64 " unreadable spot(s), %" PRIu64 " bytes skipped, %s%s\n",
                 r->guard.damaged, r->guard.bytes_skipped, r->guard.truncated ? "cut inside an event" : "not cut",

@@ -945,6 +945,13 @@ static void print_summary(const daemon_t *d)
     }
     fprintf(stderr, "; publish errors %" PRIu64 "; trajectory write errors %" PRIu64 "\n", d->n.publish_errors,
             d->n.trajectory_errors);
+    if (d->rx.fd >= 0) {
+        /* What the direct receiver could not hand on is counted, never dropped silently. */
+        fprintf(stderr,
+                "  lcm receive: messages %" PRIu64 ", on other channels %" PRIu64 ", fragmented (dropped) %" PRIu64
+                ", malformed %" PRIu64 "\n",
+                d->rx.messages, d->rx.other, d->rx.fragments, d->rx.malformed);
+    }
     fprintf(stderr,
             "  core: frames accepted %" PRIu64 ", observations used %" PRIu64 ", gated %" PRIu64
             ", landmarks mapped %" PRIu64 ", window %u/%u, numerical failures %" PRIu64 "\n",
