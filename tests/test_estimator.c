@@ -671,6 +671,47 @@ void test_update_work_bound_uses_fewer_observations_in_a_larger_window(void)
     TEST_ASSERT_EQUAL_UINT64(19, c->observations_deferred);
 }
 
+/* Four frames of the same 12 tracks at rest under a 5-observation bound; each landmark's update count. */
+static void updates_under_bound(int rotate, uint32_t updates[12])
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.max_update_observations = 5;
+    cfg.rotate_deferred = rotate;
+    vl_imu_sample_t s = start_at(&cfg, 0);
+    for (int f = 0; f < 4; ++f) {
+        s.utime = 100000 * (int64_t)f;
+        if (f > 0) {
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        }
+        make_frame(&cfg, &frame, s.utime, 12, 0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    }
+    TEST_ASSERT_EQUAL_UINT32(12, vl_window_size(&est));
+    TEST_ASSERT_EQUAL_UINT64(15, vl_get_counters(&est)->observations_used);
+    for (uint32_t i = 0; i < 12; ++i) {
+        updates[i] = est.slots[i].updates;
+    }
+}
+
+void test_rotated_deferrals_reach_every_landmark_in_turn(void)
+{
+    uint32_t updates[12];
+    updates_under_bound(1, updates);
+    for (uint32_t i = 0; i < 12; ++i) { /* 15 uses over 12 landmarks: each once or twice */
+        TEST_ASSERT_TRUE(updates[i] == 1 || updates[i] == 2);
+    }
+    /* The evenly spread subset picks the same rows every frame: some landmarks never serve. */
+    updates_under_bound(0, updates);
+    uint32_t never = 0;
+    for (uint32_t i = 0; i < 12; ++i) {
+        never += updates[i] == 0;
+    }
+    TEST_ASSERT_GREATER_THAN_UINT32(0, never);
+}
+
 void test_admissions_per_frame_are_bounded_and_the_rest_wait(void)
 {
     static vl_stereo_frame_t frame;
@@ -758,6 +799,7 @@ int main(void)
     RUN_TEST(test_get_landmarks_reports_capacity_shortfall);
     RUN_TEST(test_update_uses_at_most_max_update_observations);
     RUN_TEST(test_update_work_bound_uses_fewer_observations_in_a_larger_window);
+    RUN_TEST(test_rotated_deferrals_reach_every_landmark_in_turn);
     RUN_TEST(test_admissions_per_frame_are_bounded_and_the_rest_wait);
     RUN_TEST(test_update_counts_a_repeated_image_and_nothing_else);
     RUN_TEST(test_sparse_frame_without_consensus_keeps_the_gate_verdict);

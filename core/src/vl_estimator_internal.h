@@ -46,6 +46,12 @@ static inline uint32_t vl_landmark_col(uint32_t slot)
     return VL_CORE_DIM + 3u * slot;
 }
 
+/** Window slot of the landmark whose block starts at state index col (vl_landmark_col's inverse). */
+static inline uint32_t vl_landmark_slot_at(int col)
+{
+    return ((uint32_t)col - VL_CORE_DIM) / 3u;
+}
+
 /** World point of a window landmark, m. */
 static inline const double *vl_landmark_point(const vl_estimator_t *e, uint32_t slot)
 {

@@ -81,14 +81,54 @@ uint32_t vl_rows_cap(const vl_estimator_t *e)
     return cap;
 }
 
+/* Does row a's landmark go before row b's: used by fewer updates, then unused for longer. */
+static int used_less(const vl_estimator_t *e, const vl_la_obs_t *a, const vl_la_obs_t *b)
+{
+    const vl_landmark_slot_t *sa = &e->slots[vl_landmark_slot_at(a->landmark_col)];
+    const vl_landmark_slot_t *sb = &e->slots[vl_landmark_slot_at(b->landmark_col)];
+    if (sa->updates != sb->updates) {
+        return sa->updates < sb->updates;
+    }
+    return sa->last_update_frame < sb->last_update_frame;
+}
+
+/* The cap rows that go first by used_less (the earlier of equal rows) move to the front, in their order. */
+static void limit_least_used(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m, uint32_t cap)
+{
+    uint8_t *keep = e->work_support;
+    memset(keep, 0, m);
+    for (uint32_t c = 0; c < cap; ++c) {
+        uint32_t best = m;
+        for (uint32_t i = 0; i < m; ++i) {
+            if (!keep[i] && (best == m || used_less(e, &rows[i], &rows[best]))) {
+                best = i;
+            }
+        }
+        keep[best] = 1;
+    }
+    uint32_t front = 0;
+    for (uint32_t i = 0; i < m; ++i) {
+        if (keep[i]) {
+            vl_rows_swap(e, rows, front, i);
+            keep[i] = keep[front];
+            keep[front] = 1;
+            front++;
+        }
+    }
+}
+
 /* The others stay in the window and are used in later frames. */
 uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m, uint32_t cap)
 {
     if (cap == 0 || m <= cap) {
         return m;
     }
-    for (uint32_t i = 0; i < cap; ++i) {
-        vl_rows_swap(e, rows, i, (uint32_t)(((uint64_t)i * m) / cap));
+    if (e->cfg.rotate_deferred) {
+        limit_least_used(e, rows, m, cap);
+    } else {
+        for (uint32_t i = 0; i < cap; ++i) {
+            vl_rows_swap(e, rows, i, (uint32_t)(((uint64_t)i * m) / cap));
+        }
     }
     e->counters.observations_deferred += m - cap;
     return cap;
@@ -127,6 +167,11 @@ vl_status_t vl_update_apply(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t
         for (int i = 0; i < 3; ++i) {
             l[i] = v[i] + w[i];
         }
+    }
+    for (uint32_t i = 0; i < m; ++i) {
+        vl_landmark_slot_t *s = &e->slots[vl_landmark_slot_at(rows[i].landmark_col)];
+        s->updates++;
+        s->last_update_frame = e->frame_index;
     }
     e->counters.observations_used += m;
     return VL_OK;

@@ -31,8 +31,9 @@ uint32_t vl_rows_cap(const vl_estimator_t *e);
 
 /**
  * The time bound: when more than cap rows (vl_rows_cap; 0 = all) are given,
- * an evenly spread subset of that many moves to the front and the others are
- * counted as deferred. Returns how many rows the update uses.
+ * an evenly spread subset of that many (rotate_deferred: those of the landmarks
+ * the updates used least, then longest ago) moves to the front and the others
+ * are counted as deferred. Returns how many rows the update uses.
  */
 uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m, uint32_t cap);
 

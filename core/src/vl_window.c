@@ -109,6 +109,8 @@ static void admit_landmark(vl_estimator_t *e, int32_t id, const double y[3])
     s->id = id;
     s->observations = 1;
     s->unseen_frames = 0;
+    s->updates = 0;
+    s->last_update_frame = e->frame_index;
     s->first_utime = e->state_utime;
     s->last_utime = e->state_utime;
     e->work_seen[slot] = VL_SEEN;

@@ -77,6 +77,21 @@ def test_reference_agrees_with_frames_between_samples(build_dir, tmp_path, prese
     assert rc == 0
 
 
+def test_reference_agrees_with_rotated_deferrals(build_dir, tmp_path):
+    """A 4 Mflop budget leaves most of the sample's observations out of each update; with
+    rotate_deferred the landmarks used least go first. The reference picks the same ones (it agrees),
+    and the pick matters: the evenly spread subset in the reference alone moves the poses."""
+    ini = tmp_path / "rotate.ini"
+    ini.write_text("[estimator]\nmax_update_work = 4\nrotate_deferred = true\n")
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "30")
+    assert fig["agreement"]["frames_compared"] == 30
+    assert fig["agreement"]["position_max_m"] < TOLERANCE
+    assert rc == 0
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "30", "--set", "rotate_deferred=false")
+    assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
+    assert rc == 1
+
+
 def test_sample_velocity_weights():
     from reference.vl_reference import sample_velocity
     held, new = np.array([0.0, 2.0]), np.array([1.0, 4.0])

@@ -323,6 +323,8 @@ class Slot:
     id: int
     unseen_frames: int = 0
     seen: int = 0  # this frame: 0 not observed, 1 observed, 2 observed and contradicting (broken)
+    updates: int = 0  # its observations the updates used
+    last_update_frame: int = 0  # frame of the last update that used it, else of its admission
 
 
 @dataclass
@@ -640,10 +642,13 @@ class Filter:
         partitioned, rest = m, k - m
         cap = self.rows_cap()
         used = partitioned
-        if cap > 0 and partitioned > cap:  # the time bound: an evenly spread subset
-            for i in range(cap):
-                j = (i * partitioned) // cap
-                rows[i], rows[j] = rows[j], rows[i]
+        if cap > 0 and partitioned > cap:  # the time bound
+            if cfg["rotate_deferred"]:
+                self.keep_least_used(rows, partitioned, cap)
+            else:  # an evenly spread subset
+                for i in range(cap):
+                    j = (i * partitioned) // cap
+                    rows[i], rows[j] = rows[j], rows[i]
             used = cap
         prior_diag = np.diag(self.P)[:6].copy()
         ok = self.apply(rows[:used])
@@ -665,6 +670,22 @@ class Filter:
         if cap > 0 and used + len(rescued) > cap:
             rescued = rescued[:cap - used]
         return self.apply(rescued)
+
+    def keep_least_used(self, rows, m, cap):
+        """rotate_deferred: of the first m rows, the cap whose landmarks the updates used least
+        (then longest ago; the earlier of equal rows) move to the front, in their order."""
+        def key(i):
+            slot = self.slots[rows[i].slot]
+            return (slot.updates, slot.last_update_frame, i)
+        keep = [False] * m
+        for i in sorted(range(m), key=key)[:cap]:
+            keep[i] = True
+        front = 0
+        for i in range(m):
+            if keep[i]:
+                rows[front], rows[i] = rows[i], rows[front]
+                keep[front], keep[i] = True, keep[front]
+                front += 1
 
     def rows_cap(self):
         """The most observations one update may use (0: all): max_update_observations, and under
@@ -737,6 +758,9 @@ class Filter:
         self.b_v = self.b_v + dx[6:9]
         self.b_w = self.b_w + dx[9:12]
         self.L = self.L @ dR.T + dx[CORE_DIM:].reshape(-1, 3) @ Jl.T
+        for r in rows:
+            self.slots[r.slot].updates += 1
+            self.slots[r.slot].last_update_frame = self.frame_index
         self.counters["observations_used"] += len(rows)
         return True
 
@@ -844,7 +868,7 @@ class Filter:
         P[n:, n:] = 0.5 * (C + C.T)
         self.P = P
         self.L = np.vstack([self.L, l])
-        self.slots.append(Slot(oid, 0, SEEN))
+        self.slots.append(Slot(oid, 0, SEEN, 0, self.frame_index))
         self.counters["landmarks_initialized"] += 1
 
 

@@ -309,6 +309,8 @@ typedef struct {
     int32_t id;
     uint32_t observations;
     uint32_t unseen_frames;
+    uint32_t updates;           /**< its observations the updates used */
+    uint64_t last_update_frame; /**< frame index of the last update that used it, else of its admission */
     int64_t first_utime;
     int64_t last_utime;
 } vl_landmark_slot_t;

@@ -90,6 +90,12 @@ typedef enum {
       "n^2 m + n m^2 + m^3 / 3 flops, so the bound admits fewer observations the larger the " \
       "window: a flat worst case. At least one observation is always used; the inliers left " \
       "out (evenly spread) stay in the window for later frames.") \
+    /* Off: level with the even spread at 40 Mflop; 0.10 to 0.26 m better on 0027 (8 starts) at \
+       18 to 22 Mflop, where the budget still costs more than 0.05 m (README, Bounded work per step). */ \
+    X("estimator", "rotate_deferred", rotate_deferred, BOOL, 0, 0, 1, 0, "", \
+      "When a time bound leaves observations out, keep those of the landmarks the updates have " \
+      "used least (then longest ago) instead of an evenly spread subset, so that the landmarks " \
+      "deferred in one frame go first in the next.") \
     \
     /* ---- [noise] ---- */ \
     /* The seed data's velocities carry about 0.5 m/s and 0.05 rad/s of noise per sample \
