@@ -318,6 +318,37 @@ void test_sparse_clean_drive_does_no_harm(void)
     TEST_ASSERT_TRUE(slam.rms_position_error <= dr.rms_position_error);
 }
 
+/*
+ * One realistic simulated drive of 1100 steps, at most max_observations a frame,
+ * with the simulator's velocity noise or clean velocities: vislam's default
+ * against dead reckoning on the same drive. Returns the observations per frame.
+ */
+static double realistic_against_dead_reckoning(uint32_t max_observations, uint64_t seed, int clean_velocities,
+                                               run_result_t *slam, run_result_t *dr)
+{
+    vl_sim_config_t sc;
+    vl_config_t cfg;
+    vl_sim_config_default(&sc);
+    vl_sim_config_realistic(&sc);
+    sc.max_observations = max_observations;
+    sc.seed = seed;
+    sc.num_steps = 1100;
+    if (clean_velocities) {
+        sc.linear_noise = 0.0;
+        sc.angular_noise = 0.0;
+    }
+    vl_config_default(&cfg);
+    cfg.calibration = sc.calibration;
+    run(&sc, &cfg, slam);
+    const double obs_per_frame = (double)vl_get_counters(&est)->observations_received / 1100.0;
+    cfg.mode = VL_MODE_IMU_ONLY;
+    run(&sc, &cfg, dr);
+    printf("realistic, %.1f observations per frame, %s velocities, seed %u: slam %.3f m, dead reckoning %.3f m\n",
+           obs_per_frame, clean_velocities ? "clean" : "noisy", (unsigned)seed, slam->rms_position_error,
+           dr->rms_position_error);
+    return obs_per_frame;
+}
+
 void test_realistic_sparse_drives_with_noisy_velocities_do_no_harm(void)
 {
     static run_result_t slam, dr;
@@ -325,21 +356,7 @@ void test_realistic_sparse_drives_with_noisy_velocities_do_no_harm(void)
     static const uint32_t caps[2] = {9, 28};
     for (int c = 0; c < 2; ++c) {
         for (uint64_t seed = 1; seed <= 2; ++seed) {
-            vl_sim_config_t sc;
-            vl_config_t cfg;
-            vl_sim_config_default(&sc);
-            vl_sim_config_realistic(&sc);
-            sc.max_observations = caps[c];
-            sc.seed = seed;
-            sc.num_steps = 1100;
-            vl_config_default(&cfg);
-            cfg.calibration = sc.calibration;
-            run(&sc, &cfg, &slam);
-            const double obs_per_frame = (double)vl_get_counters(&est)->observations_received / 1100.0;
-            cfg.mode = VL_MODE_IMU_ONLY;
-            run(&sc, &cfg, &dr);
-            printf("realistic, %.1f observations per frame, seed %u: slam %.3f m, dead reckoning %.3f m\n",
-                   obs_per_frame, (unsigned)seed, slam.rms_position_error, dr.rms_position_error);
+            realistic_against_dead_reckoning(caps[c], seed, 0, &slam, &dr);
             TEST_ASSERT_TRUE(slam.rms_position_error < dr.rms_position_error);
         }
     }
@@ -358,24 +375,7 @@ void test_realistic_sparsest_clean_drive_does_no_harm(void)
     static run_result_t slam, dr;
     static const uint64_t seeds[2] = {1, 3};
     for (int i = 0; i < 2; ++i) {
-        vl_sim_config_t sc;
-        vl_config_t cfg;
-        vl_sim_config_default(&sc);
-        vl_sim_config_realistic(&sc);
-        sc.max_observations = 5;
-        sc.seed = seeds[i];
-        sc.num_steps = 1100;
-        sc.linear_noise = 0.0;
-        sc.angular_noise = 0.0;
-        vl_config_default(&cfg);
-        cfg.calibration = sc.calibration;
-        run(&sc, &cfg, &slam);
-        const double obs_per_frame = (double)vl_get_counters(&est)->observations_received / 1100.0;
-        cfg.mode = VL_MODE_IMU_ONLY;
-        run(&sc, &cfg, &dr);
-        printf("realistic, %.1f observations per frame, clean velocities, seed %u: slam %.3f m, dead reckoning "
-               "%.3f m\n",
-               obs_per_frame, (unsigned)seeds[i], slam.rms_position_error, dr.rms_position_error);
+        const double obs_per_frame = realistic_against_dead_reckoning(5, seeds[i], 1, &slam, &dr);
         TEST_ASSERT_TRUE(obs_per_frame < 4.0);
         TEST_ASSERT_TRUE(slam.rms_position_error < dr.rms_position_error);
     }
