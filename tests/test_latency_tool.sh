@@ -18,8 +18,8 @@
 #   stages (from the two programs' CLOCK_REALTIME stamps) cover every frame, add up to it, leave
 #   little unaccounted for (|other| p50 < 5 us) and none is negative (beyond the 1 us of the
 #   kernel's stamps); the overhead less its queued stage covers every frame, below the overhead.
-#   Then one pass each through liblcm's receive thread (--lcm-receive-thread)
-#   and busy-polling (--busy-poll-us) and --cpu-dma-latency 0: every pose back, stages for every
+#   Then one pass each through liblcm's receive thread (--lcm-receive-thread),
+#   busy-polling (--busy-poll-us) and --cpu-dma-latency 0: every pose back, stages for every
 #   frame; vislamd's log says whether it held the request.
 # No -e: every check runs and is reported; the exit status counts the failed ones.
 set -uo pipefail
