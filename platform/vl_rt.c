@@ -3,6 +3,8 @@
 #include "vl_rt.h"
 
 #include <errno.h>
+#include <fcntl.h>
+#include <stdint.h>
 #include <sched.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -100,4 +102,41 @@ vl_rt_status_t vl_rt_prefault_stack(size_t bytes, char *msg, size_t msg_len)
     (void)touch_stack(bytes);
     say(msg, msg_len, "stack: %zu KiB pre-faulted", bytes / 1024);
     return VL_RT_OK;
+}
+
+/* The kernel's PM QoS CPU latency interface: a request is a binary int32 (us), held while open. */
+static const char cpu_latency_path[] = "/dev/cpu_dma_latency";
+
+vl_rt_status_t vl_rt_request_cpu_latency(int max_us, int *fd_out, char *msg, size_t msg_len)
+{
+    *fd_out = -1;
+    if (max_us < 0 || max_us > 2000000000) {
+        say(msg, msg_len, "CPU wake-up latency %d us outside 0..2000000000", max_us);
+        return VL_RT_INVALID;
+    }
+    const int fd = open(cpu_latency_path, O_WRONLY | O_CLOEXEC);
+    if (fd < 0) {
+        const int e = errno;
+        say(msg, msg_len, "cannot open %s: %s (needs root; CPUs may enter deep idle states)", cpu_latency_path,
+            strerror(e));
+        return VL_RT_REFUSED;
+    }
+    const int32_t value = (int32_t)max_us;
+    if (write(fd, &value, sizeof(value)) != (ssize_t)sizeof(value)) {
+        const int e = errno;
+        close(fd);
+        say(msg, msg_len, "cannot write %s: %s", cpu_latency_path, strerror(e));
+        return VL_RT_REFUSED;
+    }
+    *fd_out = fd;
+    say(msg, msg_len, "CPU wake-up latency: at most %d us (%s held open)", max_us, cpu_latency_path);
+    return VL_RT_OK;
+}
+
+void vl_rt_release_cpu_latency(int *fd)
+{
+    if (*fd >= 0) {
+        close(*fd);
+        *fd = -1;
+    }
 }

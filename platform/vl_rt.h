@@ -1,6 +1,7 @@
 /**
  * @file vl_rt.h
- * @brief Real-time set-up of a process: SCHED_FIFO, CPU affinity, locked memory, pre-faulted stack.
+ * @brief Real-time set-up of a process: SCHED_FIFO, CPU affinity, locked memory, pre-faulted stack,
+ *        and a CPU wake-up latency request (PM QoS).
  *
  * Every call returns a status and writes a one-line message, so a daemon can
  * warn and carry on when the machine refuses (no CAP_SYS_NICE, a container's
@@ -40,6 +41,20 @@ vl_rt_status_t vl_rt_lock_memory(char *msg, size_t msg_len);
  * Always succeeds; the message says how much was touched.
  */
 vl_rt_status_t vl_rt_prefault_stack(size_t bytes, char *msg, size_t msg_len);
+
+/**
+ * Asks the kernel (PM QoS, /dev/cpu_dma_latency) to keep every CPU out of idle
+ * states whose exit latency exceeds @p max_us, as cyclictest does: the CPU then
+ * wakes for the next frame quickly instead of from a deep idle state. System-wide
+ * and it costs power; the request lasts while *fd_out stays open
+ * (vl_rt_release_cpu_latency, or the process's exit).
+ * @param max_us  maximum wake-up latency in us, 0..2000000000 (0: shallowest idle only)
+ * @param fd_out  the held request's file descriptor; -1 when nothing is held
+ */
+vl_rt_status_t vl_rt_request_cpu_latency(int max_us, int *fd_out, char *msg, size_t msg_len);
+
+/** Ends a request of vl_rt_request_cpu_latency (closes *fd, sets it to -1); nothing when *fd < 0. */
+void vl_rt_release_cpu_latency(int *fd);
 
 #ifdef __cplusplus
 }

@@ -6,7 +6,10 @@
 # in-process: two passes as fast as possible without vislamd; the JSON has every key, its
 #   percentiles are ordered (min <= p50 <= p99 <= p999 <= max), steps = frames in the log x
 #   passes (frames counted by vl_log_inspect), the work per step is positive with max >= p50,
-#   and the jitter probe ran.
+#   and the jitter probe ran; no CPU latency request unless asked (cpu_dma_latency_us null).
+#   Then one pass with --cpu-dma-latency 0: it succeeds, the JSON reports 0, and it says the
+#   request was held exactly when /dev/cpu_dma_latency is writable here (refused, a warning
+#   and not a failure, otherwise).
 # e2e: the same plus vislamd over LCM, in a private network namespace (exit 77, CTest's skip,
 #   when unshare --net is not permitted): every frame's pose came back, one sample per step; the
 #   LCM overhead has one sample per frame, 0 <= min <= p50 <= p99 <= max, and each frame's equals
@@ -15,8 +18,9 @@
 #   stages (from the two programs' CLOCK_REALTIME stamps) cover every frame, add up to it, leave
 #   little unaccounted for (|other| p50 < 5 us) and none is negative (beyond the 1 us of the
 #   kernel's stamps); the overhead less its queued stage covers every frame, below the overhead.
-#   Then one pass each through liblcm's receive thread (--lcm-receive-thread)
-#   and busy-polling (--busy-poll-us): every pose back, stages for every frame.
+#   Then one pass each through liblcm's receive thread (--lcm-receive-thread),
+#   busy-polling (--busy-poll-us) and --cpu-dma-latency 0: every pose back, stages for every
+#   frame; vislamd's log says whether it held the request.
 # No -e: every check runs and is reported; the exit status counts the failed ones.
 set -uo pipefail
 
@@ -60,6 +64,8 @@ print("work_ok", int(d["work"]["max"] >= d["work"]["p50"] > 0))
 j = d["jitter_floor_us"]
 print("jitter_ok", int(j is not None and j["samples"] > 0 and j["max"] >= 0))
 print("e2e_returned", d["e2e_frames"]["returned"])
+print("cpu_dma_latency_us", "null" if d["cpu_dma_latency_us"] is None else d["cpu_dma_latency_us"])
+print("cpu_dma_latency_held", int(d["cpu_dma_latency_held"]))
 print("e2e_samples", len(d["samples"]["e2e_us"]))
 lcm = d["lcm_overhead_us"]
 print("lcm_n", 0 if lcm is None else lcm["n"])
@@ -129,7 +135,7 @@ if [ "$MODE" = e2e ]; then
     eq "$(value "$OUT/facts" stages_other_small)" 1
   check "LCM overhead stages: none negative" eq "$(value "$OUT/facts" stages_not_negative)" 1
   check "LCM overhead less queued: every frame, below the overhead" eq "$(value "$OUT/facts" transport_ok)" 1
-  for variant in --lcm-receive-thread "--busy-poll-us 2000"; do
+  for variant in --lcm-receive-thread "--busy-poll-us 2000" "--cpu-dma-latency 0"; do
     # shellcheck disable=SC2086 # the variant is an option and its value
     "$BIN/vislam-latency" "$LOG" --rate max --passes 1 --no-probe --lcm-url "$URL" $variant --json "$OUT/v.json" \
       --work-dir "$OUT/work_v" --quiet 2>"$OUT/stderr_v" || cat "$OUT/stderr_v"
@@ -137,9 +143,23 @@ if [ "$MODE" = e2e ]; then
     check "$variant: every pose came back" eq "$(value "$OUT/facts_v" e2e_returned)" "$frames"
     check "$variant: LCM overhead stages for every frame" eq "$(value "$OUT/facts_v" stages_n)" "$frames"
   done
+  check "vislamd reports its --cpu-dma-latency request" eq \
+    "$(grep -c 'CPU wake-up latency: at most 0 us\|cannot open /dev/cpu_dma_latency' "$OUT/work_v/vislamd_0.log")" 1
 else
   check "no end-to-end figures without vislamd" eq "$(value "$OUT/facts" e2e_samples)" 0
   check "no LCM overhead without vislamd" eq "$(value "$OUT/facts" lcm_samples)" 0
+  check "no CPU latency request unless asked" eq "$(value "$OUT/facts" cpu_dma_latency_us)" null
+  rc=0
+  "$BIN/vislam-latency" "$LOG" --rate max --passes 1 --no-probe --no-e2e --cpu-dma-latency 0 --json "$OUT/q.json" \
+    --work-dir "$OUT/work_q" --quiet 2>"$OUT/stderr_q" || rc=$?
+  cat "$OUT/stderr_q"
+  check "--cpu-dma-latency 0: exit status 0" eq "$rc" 0
+  PASSES=1 facts "$OUT/q.json" "$OUT/work_q" >"$OUT/facts_q" || echo "FAIL: the JSON does not parse"
+  check "--cpu-dma-latency 0: reported" eq "$(value "$OUT/facts_q" cpu_dma_latency_us)" 0
+  writable=0
+  [ -w /dev/cpu_dma_latency ] && writable=1
+  check "--cpu-dma-latency 0: held exactly when /dev/cpu_dma_latency is writable" \
+    eq "$(value "$OUT/facts_q" cpu_dma_latency_held)" "$writable"
 fi
 echo "$FAILS check(s) failed"
 exit "$FAILS"

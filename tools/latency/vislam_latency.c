@@ -73,8 +73,10 @@ typedef struct {
     int probe;
     long budget_us;
     long timeout_ms;
-    const char *busy_poll_us; /* end to end: vislamd's and the replay's --busy-poll-us, as given */
-    int lcm_receive_thread;   /* end to end: both receive through liblcm's thread */
+    const char *busy_poll_us;    /* end to end: vislamd's and the replay's --busy-poll-us, as given */
+    int lcm_receive_thread;      /* end to end: both receive through liblcm's thread */
+    const char *cpu_dma_latency; /* the PM QoS request (us) in-process and vislamd's, as given; NULL: none */
+    int cpu_dma_latency_us;      /* the same, parsed; -1: none */
     int quiet;
     vl_worker_options_t worker;
 } options_t;
@@ -122,6 +124,9 @@ static void usage(FILE *f)
                "  --timeout-ms N      end to end: how long to wait for a pose (default 2000)\n"
                "  --busy-poll-us N    end to end: vislamd and the replay spin on their sockets up to N us for\n"
                "                      the next message before sleeping (their --busy-poll-us)\n"
+               "  --cpu-dma-latency US  hold /dev/cpu_dma_latency at US us during the in-process pass and\n"
+               "                      pass it to vislamd: no CPU enters an idle state slower to leave\n"
+               "                      (system-wide, costs power; a refusal is a warning)\n"
                "  --lcm-receive-thread  end to end: both receive through liblcm's receive thread (their\n"
                "                      --lcm-receive-thread), not on the socket in their own loop\n"
                "  --config FILE       INI configuration (the estimator's and vislamd's)\n"
@@ -164,6 +169,7 @@ static int parse_args(int argc, char **argv, options_t *o)
     memset(o, 0, sizeof(*o));
     o->passes = 1;
     o->cpu = -1;
+    o->cpu_dma_latency_us = -1;
     o->other_cpu = -1;
     o->e2e = 1;
     o->probe = 1;
@@ -244,6 +250,12 @@ static int parse_args(int argc, char **argv, options_t *o)
                     return -1;
                 }
                 o->busy_poll_us = v;
+            } else if (strcmp(a, "--cpu-dma-latency") == 0) {
+                if (parse_long(a, v, 0, 2000000000L, &n) != 0) {
+                    return -1;
+                }
+                o->cpu_dma_latency = v;
+                o->cpu_dma_latency_us = (int)n;
             } else if (strcmp(a, "--config") == 0) {
                 o->config_path = v;
             } else if (strcmp(a, "--json") == 0) {
@@ -877,6 +889,10 @@ static void run_e2e(const char *dir, e2e_t *e)
             dargv[k++] = "--busy-poll-us";
             dargv[k++] = opt.busy_poll_us;
         }
+        if (opt.cpu_dma_latency != NULL) {
+            dargv[k++] = "--cpu-dma-latency";
+            dargv[k++] = opt.cpu_dma_latency;
+        }
         if (opt.lcm_receive_thread) {
             dargv[k++] = "--lcm-receive-thread";
         }
@@ -1100,6 +1116,7 @@ typedef struct {
     double callgrind;
     long cyclictest_max;
     int rt_granted;
+    int cpu_latency_held;  /* the in-process pass held its --cpu-dma-latency request */
     int worker_running;    /* the in-process pass shared its updates with a worker */
     double worker_share;   /* of the blocks handed out, those the worker ran */
     uint64_t worker_loops; /* parallel loops handed out (two per joint update) */
@@ -1147,6 +1164,12 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
             opt.rate_max ? "max" : "sensor", opt.cpu, opt.other_cpu, opt.rt_priority);
     fprintf(f, "  \"rt_granted\": %s,\n  \"load\": %s,\n  \"steps\": %zu,\n  \"budget_us\": %ld,\n",
             res->rt_granted ? "true" : "false", opt.load ? "true" : "false", nsteps, res->budget_us);
+    if (opt.cpu_dma_latency_us >= 0) {
+        fprintf(f, "  \"cpu_dma_latency_us\": %d,\n  \"cpu_dma_latency_held\": %s,\n", opt.cpu_dma_latency_us,
+                res->cpu_latency_held ? "true" : "false");
+    } else {
+        fprintf(f, "  \"cpu_dma_latency_us\": null,\n  \"cpu_dma_latency_held\": false,\n");
+    }
     fprintf(f, "  \"threads\": %d,\n  \"worker_cpu\": ", res->worker_running ? 2 : 1);
     fprintf(f, res->worker_running ? "%d" : "null", opt.worker.cpu);
     fprintf(f, ",\n  \"worker_share\": %.4f,\n  \"worker_loops\": %" PRIu64 ",\n", res->worker_share,
@@ -1340,6 +1363,16 @@ int main(int argc, char **argv)
     if (vl_rt_set_affinity(opt.cpu, msg, sizeof(msg)) != VL_RT_OK) {
         fprintf(stderr, "vislam-latency: warning: %s\n", msg);
     }
+    int cpu_latency_fd = -1;
+    if (opt.cpu_dma_latency_us >= 0) {
+        res.cpu_latency_held =
+            vl_rt_request_cpu_latency(opt.cpu_dma_latency_us, &cpu_latency_fd, msg, sizeof(msg)) == VL_RT_OK;
+        if (!res.cpu_latency_held) {
+            fprintf(stderr, "vislam-latency: warning: %s\n", msg);
+        } else if (!opt.quiet) {
+            fprintf(stderr, "vislam-latency: %s\n", msg);
+        }
+    }
     if (opt.rt_priority > 0) {
         res.rt_granted = vl_rt_set_fifo(opt.rt_priority, msg, sizeof(msg)) == VL_RT_OK;
         if (!res.rt_granted) {
@@ -1374,6 +1407,8 @@ int main(int argc, char **argv)
     }
     vl_worker_stop(&g_worker);
     release_rt(cpus);
+    /* The end-to-end pass is measured with vislamd's own request only. */
+    vl_rt_release_cpu_latency(&cpu_latency_fd);
     /* The end-to-end pass's processes pin and schedule themselves; this thread only waits. */
     static e2e_t e2e;
     if (ip_rc == 0 && opt.e2e) {
@@ -1446,6 +1481,10 @@ int main(int argc, char **argv)
     fprintf(stderr, "vislam-latency: %s, window %u, %zu steps (%zu frames x %d), rate %s, CPU %d%s%s\n", opt.log_path,
             (unsigned)res.window, nsteps, lg.frames, opt.passes, opt.rate_max ? "max" : "sensor", opt.cpu,
             res.rt_granted ? ", SCHED_FIFO" : "", opt.load ? ", loaded" : "");
+    if (opt.cpu_dma_latency_us >= 0) {
+        fprintf(stderr, "  cpu_dma_latency: %d us, %s in-process\n", opt.cpu_dma_latency_us,
+                res.cpu_latency_held ? "held" : "refused");
+    }
     if (res.worker_running) {
         fprintf(stderr, "  threads: 2 (worker on CPU %d ran %.1f%% of the update's blocks in-process)\n",
                 opt.worker.cpu, 100.0 * res.worker_share);

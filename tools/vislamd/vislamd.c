@@ -90,6 +90,7 @@ typedef struct {
     int lcm_receive_thread; /* receive through liblcm's thread and pipe, not on the socket directly */
     int rt_priority;        /* 0: leave the scheduler alone */
     int cpu;                /* -1: no affinity */
+    int cpu_dma_latency_us; /* PM QoS request held from start-up to exit; -1: none */
     int no_mlock;
     int quiet;
     int print_config;
@@ -216,7 +217,10 @@ static void usage(FILE *f)
             "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
             "                          of the last %d IMU intervals; %d us until known)\n"
             "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
-            "  --cpu K                 pin to CPU K (a refusal is a warning)\n",
+            "  --cpu K                 pin to CPU K (a refusal is a warning)\n"
+            "  --cpu-dma-latency US    hold /dev/cpu_dma_latency at US us until exit: no CPU enters an\n"
+            "                          idle state slower to leave (system-wide, costs power; a refusal\n"
+            "                          is a warning)\n",
             STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US);
     fputs(VL_WORKER_USAGE("       "), f);
     fprintf(f,
@@ -263,9 +267,9 @@ static int parse_long(const char *opt, const char *s, long lo, long hi, long *ou
 
 static int takes_value(const char *a)
 {
-    static const char *const names[] = {"--config",         "--lcm-url",   "--trajectory",  "--step-samples",
-                                        "--channel-prefix", "--budget-us", "--rt-priority", "--cpu",
-                                        "--busy-poll-us"};
+    static const char *const names[] = {"--config",         "--lcm-url",        "--trajectory",  "--step-samples",
+                                        "--channel-prefix", "--budget-us",      "--rt-priority", "--cpu",
+                                        "--busy-poll-us",   "--cpu-dma-latency"};
     for (size_t i = 0; i < sizeof(names) / sizeof(names[0]); ++i) {
         if (strcmp(a, names[i]) == 0) {
             return 1;
@@ -283,6 +287,7 @@ static int parse_args(int argc, char **argv, options_t *o)
 {
     memset(o, 0, sizeof(*o));
     o->cpu = -1;
+    o->cpu_dma_latency_us = -1;
     vl_worker_options_default(&o->worker);
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
@@ -357,6 +362,11 @@ static int parse_args(int argc, char **argv, options_t *o)
                 return -1;
             }
             o->cpu = (int)n;
+        } else if (strcmp(a, "--cpu-dma-latency") == 0) {
+            if (parse_long(a, v, 0, 2000000000L, &n) != 0) {
+                return -1;
+            }
+            o->cpu_dma_latency_us = (int)n;
         } else {
             known = 0;
             for (int c = 0; c < CH_COUNT; ++c) {
@@ -820,9 +830,18 @@ static int load_config(daemon_t *d)
     return 0;
 }
 
+/* The PM QoS request's descriptor (-1: none): held open until exit. */
+static int g_cpu_latency_fd = -1;
+
 static void realtime_setup(const options_t *o)
 {
     char msg[256];
+    if (o->cpu_dma_latency_us >= 0) {
+        const vl_rt_status_t s = vl_rt_request_cpu_latency(o->cpu_dma_latency_us, &g_cpu_latency_fd, msg, sizeof(msg));
+        if (s != VL_RT_OK || !o->quiet) {
+            fprintf(stderr, "vislamd: %s%s\n", s != VL_RT_OK ? "warning: " : "", msg);
+        }
+    }
     if (o->cpu >= 0) {
         const vl_rt_status_t s = vl_rt_set_affinity(o->cpu, msg, sizeof(msg));
         if (s != VL_RT_OK || !o->quiet) {
@@ -1153,5 +1172,6 @@ int main(int argc, char **argv)
     lcm_destroy(d->lcm);
     vl_worker_stop(&worker);
     vl_notify_close(&d->notify);
+    vl_rt_release_cpu_latency(&g_cpu_latency_fd);
     return exit_code;
 }
