@@ -833,6 +833,23 @@ static void pair_steps(const char *path, e2e_t *e, size_t from)
     free(ds);
 }
 
+/* The LCM options vislamd and the replay take alike, appended at argv[k]; returns the new count. */
+static int add_lcm_args(const char **argv, int k, const options_t *o)
+{
+    if (o->lcm_url != NULL) {
+        argv[k++] = "--lcm-url";
+        argv[k++] = o->lcm_url;
+    }
+    if (o->busy_poll_us != NULL) {
+        argv[k++] = "--busy-poll-us";
+        argv[k++] = o->busy_poll_us;
+    }
+    if (o->lcm_receive_thread) {
+        argv[k++] = "--lcm-receive-thread";
+    }
+    return k;
+}
+
 static void run_e2e(const char *dir, e2e_t *e)
 {
     char vislamd[PATH_LEN], replay[PATH_LEN];
@@ -877,24 +894,14 @@ static void run_e2e(const char *dir, e2e_t *e)
             dargv[k++] = "--rt-priority";
             dargv[k++] = prio;
         }
-        if (opt.lcm_url != NULL) {
-            dargv[k++] = "--lcm-url";
-            dargv[k++] = opt.lcm_url;
-        }
+        k = add_lcm_args(dargv, k, &opt);
         if (opt.config_path != NULL) {
             dargv[k++] = "--config";
             dargv[k++] = opt.config_path;
         }
-        if (opt.busy_poll_us != NULL) {
-            dargv[k++] = "--busy-poll-us";
-            dargv[k++] = opt.busy_poll_us;
-        }
         if (opt.cpu_dma_latency != NULL) {
             dargv[k++] = "--cpu-dma-latency";
             dargv[k++] = opt.cpu_dma_latency;
-        }
-        if (opt.lcm_receive_thread) {
-            dargv[k++] = "--lcm-receive-thread";
         }
         if (opt.worker.threads > 1) {
             dargv[k++] = "--threads";
@@ -923,17 +930,7 @@ static void run_e2e(const char *dir, e2e_t *e)
         rargv[r++] = samples;
         rargv[r++] = "--linger-ms";
         rargv[r++] = "0";
-        if (opt.lcm_url != NULL) {
-            rargv[r++] = "--lcm-url";
-            rargv[r++] = opt.lcm_url;
-        }
-        if (opt.busy_poll_us != NULL) {
-            rargv[r++] = "--busy-poll-us";
-            rargv[r++] = opt.busy_poll_us;
-        }
-        if (opt.lcm_receive_thread) {
-            rargv[r++] = "--lcm-receive-thread";
-        }
+        r = add_lcm_args(rargv, r, &opt);
         rargv[r] = NULL;
         /* vislamd pins and schedules itself (its own warnings if refused); the replay is pinned here. */
         const pid_t daemon = spawn((char *const *)dargv, dlog, -1, 0);
