@@ -122,11 +122,11 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime)
  */
 void vl_predict_to_sample(vl_estimator_t *e, const vl_imu_sample_t *imu)
 {
-    if (skip_untrusted(e, imu->utime)) {
+    if (!e->cfg.interpolate_velocities) {
+        vl_predict_to(e, imu->utime); /* the held sample */
         return;
     }
-    if (!e->cfg.interpolate_velocities) {
-        predict_with(e, imu->utime, e->held_linear, e->held_angular, 1.0);
+    if (skip_untrusted(e, imu->utime)) {
         return;
     }
     const double span = (double)vl_utime_diff(imu->utime, e->last_imu_utime);
