@@ -5,8 +5,9 @@
  * adaptation (vl_noise) and the guards on inputs and state (vl_guard), with the
  * stereo rig at the current pose in vl_camera.
  *
- * An IMU sample: checks, prediction to its time, then it is held. A frame:
- * checks, prediction to its time, its observations sorted into update rows and
+ * An IMU sample: checks, prediction to its time (P's core block only: the rest
+ * waits, vl_predict.c), then it is held. A frame: checks, prediction to its
+ * time and the waiting prediction applied to all of P, its observations sorted into update rows and
  * admission candidates, the rows fused (gate, re-association, RANSAC, the joint
  * update, noise adaptation, rescue), ended and broken tracks retired to the map,
  * the candidates admitted. After every used input, the divergence guard.
@@ -53,7 +54,7 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
     memcpy(e->R, I3, sizeof(I3));
     /* Only the leading 12 x 12 block is live at start; the rest is written as landmarks arrive. */
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
-        memset(&e->P[(size_t)j * VL_LD], 0, VL_CORE_DIM * sizeof(double));
+        memset(&vl_P(e)[(size_t)j * VL_LD], 0, VL_CORE_DIM * sizeof(double));
     }
     if (cfg->estimate_input_offsets) {
         for (int i = 0; i < 3; ++i) {
@@ -365,8 +366,9 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     e->num_prev_obs = count;
     memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
 
-    /* 1. Predict to the frame. */
+    /* 1. Predict to the frame; the steps since the last frame reach the whole of P. */
     vl_predict_to(e, frame->utime);
+    vl_predict_settle(e);
     const double frame_dt = e->have_frame ? (double)vl_utime_diff(frame->utime, e->last_frame_utime) * 1e-6 : 0.0;
     e->last_frame_utime = frame->utime;
     e->have_frame = 1;
@@ -427,7 +429,7 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
     double P6[36], Ad[36], Rt[9], pinv[3], tmp[36];
     for (int i = 0; i < 6; ++i) {
         for (int j = 0; j < 6; ++j) {
-            P6[6 * i + j] = e->P[(size_t)j * VL_LD + i];
+            P6[6 * i + j] = vl_P_value(e, (uint32_t)i, (uint32_t)j);
         }
     }
     for (int i = 0; i < 3; ++i) {
@@ -490,6 +492,7 @@ vl_status_t vl_flush_landmarks(vl_estimator_t *e)
     if (e == NULL) {
         return VL_ERR_NULL;
     }
+    vl_predict_settle(e);
     /* Marginalize from the end so no block moves. */
     while (e->num_landmarks > 0) {
         vl_window_marginalize(e, e->num_landmarks - 1u);

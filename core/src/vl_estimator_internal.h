@@ -6,13 +6,15 @@
  * State order: [rho, phi (pose), linear offset, angular offset, landmark 0, ...].
  * Offsets are always present in the layout; with estimate_input_offsets off
  * their covariance stays zero, so they never move. The covariance P is
- * column-major with leading dimension VL_LD.
+ * column-major with leading dimension VL_LD; outside vl_predict.c it is
+ * accessed through vl_P and vl_P_at only.
  */
 #ifndef VISLAM_VL_ESTIMATOR_INTERNAL_H
 #define VISLAM_VL_ESTIMATOR_INTERNAL_H
 
 #include "vislam/vislam.h"
 
+#include <assert.h>
 #include <math.h>
 
 /** Leading dimension of P and of the update workspaces. */
@@ -34,10 +36,39 @@ typedef enum {
     VL_SEEN_BROKEN = 2 /**< observed, contradicting it: a broken track, mapped and restarted */
 } vl_seen_t;
 
-/** Element (row, col) of P. */
+/*
+ * P is read and written through these. Between updates the prediction is
+ * deferred (vl_predict.c): only the core block (pose and offsets) is current,
+ * and the rest of P is stale until vl_predict_settle. The asserts (on in the
+ * checked core the tests link) make a stale read fail where it happens.
+ */
+
+/** P, settled: for any reader or writer beyond the core block. */
+static inline double *vl_P(vl_estimator_t *e)
+{
+    assert(e->deferred.steps == 0);
+    return e->P;
+}
+
+/** vl_P for a reader. */
+static inline const double *vl_P_const(const vl_estimator_t *e)
+{
+    assert(e->deferred.steps == 0);
+    return e->P;
+}
+
+/** Element (row, col) of P: the core block at any time, the rest once settled. */
 static inline double *vl_P_at(vl_estimator_t *e, uint32_t row, uint32_t col)
 {
+    assert((row < VL_CORE_DIM && col < VL_CORE_DIM) || e->deferred.steps == 0);
     return &e->P[(size_t)col * VL_LD + row];
+}
+
+/** vl_P_at for a reader. */
+static inline double vl_P_value(const vl_estimator_t *e, uint32_t row, uint32_t col)
+{
+    assert((row < VL_CORE_DIM && col < VL_CORE_DIM) || e->deferred.steps == 0);
+    return e->P[(size_t)col * VL_LD + row];
 }
 
 /** First state index of a window slot's landmark. */

@@ -132,8 +132,8 @@ int vl_guard_frame_repeats_previous(const vl_estimator_t *e, const vl_stereo_fra
 }
 
 /*
- * A non-finite state, a covariance with a negative or non-finite diagonal or a
- * core block violating |P_ij| <= sqrt(P_ii P_jj) (a necessary condition of
+ * A non-finite state, a covariance with a negative or non-finite diagonal (or
+ * non-finite deferred prediction accumulators) or a core block violating |P_ij| <= sqrt(P_ii P_jj) (a necessary condition of
  * positive semi-definiteness, cheap enough for every step), or, in SLAM,
  * divergence_frames failed updates in a row.
  */
@@ -143,17 +143,24 @@ int vl_guard_diverged(const vl_estimator_t *e)
         !vl_all_finite(e->offset_angular, 3) || !vl_all_finite(e->landmark_state, 3 * (int)e->num_landmarks)) {
         return 1;
     }
-    const uint32_t n = vl_state_dim(e);
+    /* With a prediction deferred, the landmark diagonal is the last settled one (checked
+     * then) and what the steps add to it is in the accumulators. */
+    const vl_deferred_prediction_t *d = &e->deferred;
+    if (d->steps > 0 &&
+        (!vl_all_finite(d->noise, VL_CORE_DIM * VL_CORE_DIM) || !vl_all_finite(d->transition, VL_CORE_DIM * 6))) {
+        return 1;
+    }
+    const uint32_t n = d->steps == 0 ? vl_state_dim(e) : VL_CORE_DIM;
     for (uint32_t i = 0; i < n; ++i) {
-        const double d = e->P[(size_t)i * VL_LD + i];
-        if (!(d >= 0.0) || !isfinite(d)) {
+        const double d_ii = vl_P_value(e, i, i);
+        if (!(d_ii >= 0.0) || !isfinite(d_ii)) {
             return 1;
         }
     }
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
         for (uint32_t i = 0; i < j; ++i) {
-            const double pij = e->P[(size_t)j * VL_LD + i];
-            const double bound = e->P[(size_t)i * VL_LD + i] * e->P[(size_t)j * VL_LD + j];
+            const double pij = vl_P_value(e, i, j);
+            const double bound = vl_P_value(e, i, i) * vl_P_value(e, j, j);
             if (!isfinite(pij) || pij * pij > bound * (1.0 + VL_DIVERGENCE_CORRELATION_SLACK)) {
                 return 1;
             }

@@ -181,12 +181,72 @@ struct no_heap_scope {
 #endif
 };
 
-void mirror_lower_to_upper(MatMap &P)
+/* The upper triangle from the lower, from column `from` on. */
+void mirror_lower_to_upper(MatMap &P, Eigen::Index from = 1)
 {
     const Eigen::Index n = P.rows();
-    for (Eigen::Index j = 1; j < n; ++j) {
+    for (Eigen::Index j = from; j < n; ++j) {
         P.col(j).head(j) = P.row(j).head(j).transpose();
     }
+}
+
+using CoreMat = Eigen::Matrix<double, VL_CORE_DIM, VL_CORE_DIM>; /* column-major, as the accumulators */
+using Mat12x6 = Eigen::Matrix<double, VL_CORE_DIM, 6>;
+using Mat3x12 = Eigen::Matrix<double, 3, VL_CORE_DIM>;
+
+/*
+ * What every landmark row of a deferred prediction shares (vl_la_settle): with
+ * U = [B, E] (n x 12; identity on the core rows) and Phi = I + U Y E^T the
+ * steps' transition, Phi P0 Phi^T + U A U^T = P0 + U Z^T + Z U^T with
+ * Z = M Y^T + U A / 2 and M = P0 E + U Y Pbb0 / 2 (the form of
+ * vl_la_propagate's M). Pose states are 0..5, rotation 3..5, offsets 6..11.
+ */
+struct settle_core {
+    Mat12x6 Y;
+    Eigen::Matrix<double, 6, 6> half_Pbb;
+    Mat3x12 half_A_rot;                          /* A's rotation rows / 2 */
+    Eigen::Matrix<double, VL_CORE_DIM, 3> Z_rot; /* Z's core rows, rotation columns */
+};
+
+settle_core settle_prepare(const vl_deferred_prediction_t *d)
+{
+    settle_core c;
+    const Eigen::Map<const CoreMat> core0(d->core0);
+    const Eigen::Map<const CoreMat> A(d->noise);
+    c.Y = Eigen::Map<const Mat12x6>(d->transition);
+    c.half_Pbb = 0.5 * core0.bottomRightCorner<6, 6>();
+    c.half_A_rot = 0.5 * A.middleRows<3>(3);
+    Mat12x6 M = core0.rightCols<6>();
+    M.noalias() += c.Y * c.half_Pbb;
+    CoreMat Z = 0.5 * A;
+    Z.noalias() += M * c.Y.transpose();
+    c.Z_rot = Z.middleCols<3>(3);
+    return c;
+}
+
+/*
+ * One landmark's rows against the core (3 x 12, read before the deferred steps)
+ * to their settled values: rows + Z_s + Lam Z_c,rot^T with Lam = hat(point)
+ * (B's block on the landmark's rows; zero without a point). Returns Lam and
+ * Z_s's rotation columns for the landmark block.
+ */
+template <typename RowsT>
+void settle_rows(const settle_core &c, const double *point, RowsT &&rows, Eigen::Matrix3d &Lam, Eigen::Matrix3d &Z_rot)
+{
+    Lam.setZero();
+    if (point != nullptr) {
+        Lam << 0.0, -point[2], point[1], point[2], 0.0, -point[0], -point[1], point[0], 0.0;
+    }
+    Eigen::Matrix<double, 3, 6> V;
+    V.noalias() = Lam * c.Y.middleRows<3>(3);
+    Eigen::Matrix<double, 3, 6> M = rows.template rightCols<6>();
+    M.noalias() += V * c.half_Pbb;
+    Mat3x12 Z;
+    Z.noalias() = M * c.Y.transpose();
+    Z.noalias() += Lam * c.half_A_rot;
+    rows += Z;
+    rows.noalias() += Lam * c.Z_rot.transpose();
+    Z_rot = Z.middleCols<3>(3);
 }
 
 } // namespace
@@ -224,6 +284,50 @@ extern "C" void vl_la_propagate(double *Pbuf, int ld, int n, const double *Gbuf,
         P.diagonal().segment<6>(6) += Eigen::Map<const Eigen::Matrix<double, 6, 1>>(offset_var);
     }
     mirror_lower_to_upper(P);
+}
+
+extern "C" void vl_la_settle(double *Pbuf, int ld, int n, const vl_deferred_prediction_t *d, const double *points,
+                             double *work)
+{
+    no_heap_scope guard;
+    const Eigen::Index nl = n - VL_CORE_DIM;
+    if (nl <= 0) {
+        return;
+    }
+    MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
+    const settle_core c = settle_prepare(d);
+    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 6>> X(work, nl, 6);
+    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 6>> Xs(work + 6 * nl, nl, 6);
+    for (Eigen::Index r = 0; r < nl; r += 3) {
+        Eigen::Matrix3d Lam, Z_rot;
+        settle_rows(c, points != nullptr ? points + r : nullptr, P.block<3, VL_CORE_DIM>(VL_CORE_DIM + r, 0), Lam,
+                    Z_rot);
+        X.block<3, 3>(r, 0) = Lam;
+        X.block<3, 3>(r, 3) = Z_rot;
+        Xs.block<3, 3>(r, 0) = Z_rot;
+        Xs.block<3, 3>(r, 3) = Lam;
+    }
+    if (points != nullptr) {
+        /* The landmark block: Lam Z_rot^T + Z_rot Lam^T = X Xs^T, one rank-6 product on the lower triangle. */
+        P.bottomRightCorner(nl, nl).triangularView<Eigen::Lower>() += X * Xs.transpose();
+    }
+    mirror_lower_to_upper(P, VL_CORE_DIM);
+}
+
+extern "C" void vl_la_settled_landmark(const double *Pbuf, int ld, int col, const vl_deferred_prediction_t *d,
+                                       const double *point, double cross[3 * VL_CORE_DIM], double block[9])
+{
+    no_heap_scope guard;
+    ConstMatMap P(Pbuf, col + 3, col + 3, Eigen::OuterStride<>(ld));
+    const settle_core c = settle_prepare(d);
+    Eigen::Map<Mat3x12> rows(cross);
+    rows = P.block<3, VL_CORE_DIM>(col, 0);
+    Eigen::Matrix3d Lam, Z_rot;
+    settle_rows(c, point, rows, Lam, Z_rot);
+    Eigen::Map<Eigen::Matrix3d> B(block);
+    B = P.block<3, 3>(col, col);
+    B.noalias() += Lam * Z_rot.transpose();
+    B.noalias() += Z_rot * Lam.transpose();
 }
 
 extern "C" void vl_la_obs_covariance(const double *Pbuf, int ld, const vl_la_obs_t *obs, double S_rm[9])

@@ -46,6 +46,30 @@ void vl_la_propagate(double *P, int ld, int n, const double *G, const double noi
                      double *work);
 
 /**
+ * Applies a deferred prediction (vl_deferred_prediction_t: K steps whose core
+ * block is already in P) to the landmark rows and columns of P. With
+ * U = [B, E] (n x 12: identity on the core rows, hat(l_s) times the rotation
+ * rows' selector on landmark s's rows), Y and A the steps' transition and noise
+ * in core coordinates and P0 the core block before them,
+ *   P <- P + U Z^T + Z U^T,  Z = M Y^T + U A / 2,  M = P E + U Y Pbb0 / 2:
+ * for each landmark its rows against the core (O(1) each), then one symmetric
+ * rank-6 product on the landmark block.
+ * @param points the landmarks' world points (3 each), or NULL when B's landmark
+ *               rows are zero (mapping: the trajectory is taken as known)
+ * @param work   >= 12 (n - 12) doubles
+ */
+void vl_la_settle(double *P, int ld, int n, const vl_deferred_prediction_t *d, const double *points, double *work);
+
+/**
+ * One landmark's rows as vl_la_settle leaves them, P untouched: against the
+ * core (3 x 12, column-major) and its own 3 x 3 block.
+ * @param col   the landmark's first state index
+ * @param point its world point, or NULL as in vl_la_settle
+ */
+void vl_la_settled_landmark(const double *P, int ld, int col, const vl_deferred_prediction_t *d, const double *point,
+                            double cross[3 * VL_CORE_DIM], double block[9]);
+
+/**
  * Joint EKF update with k stereo observations (m = 3k rows), touching only the
  * observed columns to form P H^T, one Cholesky factorization of S = H P H^T + R
  * and a symmetric rank-m downdate P -= (P H^T L^-T)(P H^T L^-T)^T.

@@ -81,7 +81,7 @@ static void pixel_samples(const vl_estimator_t *e, const vl_la_obs_t *rows, uint
     static const double share[3] = {1.0, 0.5, 1.0};
     for (uint32_t i = from; i < to; ++i) {
         double S[9];
-        vl_la_obs_covariance(e->P, VL_LD, &rows[i], S); /* H P+ H^T + R */
+        vl_la_obs_covariance(vl_P_const(e), VL_LD, &rows[i], S); /* H P+ H^T + R */
         for (int r = 0; r < 3; ++r) {
             double res = rows[i].residual[r];
             for (int j = 0; j < 6; ++j) {

@@ -54,7 +54,7 @@ uint32_t vl_outliers_gate(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k
     uint32_t failed = 0;
     for (uint32_t i = 0; i < k; ++i) {
         double S[9];
-        vl_la_obs_covariance(e->P, VL_LD, &rows[i], S);
+        vl_la_obs_covariance(vl_P(e), VL_LD, &rows[i], S);
         e->work_inlier[i] = vl_mahalanobis3(S, rows[i].residual) <= e->cfg.gate_chi2;
         failed += !e->work_inlier[i];
     }
@@ -90,7 +90,7 @@ void vl_outliers_ransac(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k)
     uint64_t rng = e->frame_index;
     for (uint32_t h = 0; h < hypotheses; ++h) {
         const uint32_t pick = (uint32_t)(next_random(&rng) % k);
-        if (vl_la_single_correction(e->P, VL_LD, n, &rows[pick], e->work_PHt, e->work_dx) != 0) {
+        if (vl_la_single_correction(vl_P(e), VL_LD, n, &rows[pick], e->work_PHt, e->work_dx) != 0) {
             continue;
         }
         uint8_t *flags = e->work_support;
@@ -133,7 +133,7 @@ uint32_t vl_outliers_rescue(vl_estimator_t *e, const vl_stereo_frame_t *frame, v
             continue;
         }
         double S[9];
-        vl_la_obs_covariance(e->P, VL_LD, &row, S);
+        vl_la_obs_covariance(vl_P(e), VL_LD, &row, S);
         if (vl_mahalanobis3(S, row.residual) <= e->cfg.gate_chi2) {
             rows[m] = row;
             e->work_slot[m] = slot;

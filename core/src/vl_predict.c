@@ -2,6 +2,8 @@
  * Prediction on SE(3): T <- T exp(tau (u - b)) with u the velocity over the
  * interval and b the estimated offsets. In invariant error coordinates the error
  * does not move (Phi = I) except through the input noise and the offset error.
+ * A step moves the mean and P's core block (pose and offsets) at once; its
+ * effect on the landmark rows waits in e->deferred until vl_predict_settle.
  */
 #include "vl_predict.h"
 
@@ -59,37 +61,100 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
     for (int i = 0; i < 36; ++i) {
         Gp[i] *= -tau;
     }
-    const uint32_t n = vl_state_dim(e);
-    vl_work_predict(e, n, e->cfg.estimate_input_offsets);
-    double *G = e->work_PHt; /* n x 6, column-major; the update workspace is free here */
-    for (int j = 0; j < 6; ++j) {
-        double *col = &G[(size_t)j * n];
-        for (int i = 0; i < 6; ++i) {
-            col[i] = Gp[6 * i + j];
-            col[6 + i] = 0.0;
-        }
-        const double *phi_rows = &Gp[6 * VL_IDX_PHI + j]; /* column j of the rotation rows, stride 6 */
-        const double psi[3] = {phi_rows[0], phi_rows[6], phi_rows[12]};
-        for (uint32_t s = 0; s < e->num_landmarks; ++s) {
-            double *g = &col[vl_landmark_col(s)];
-            if (e->cfg.mode == VL_MODE_MAPPING) {
-                g[0] = g[1] = g[2] = 0.0; /* the trajectory is taken as known */
-                continue;
-            }
-            const double *l = vl_landmark_point(e, s);
-            g[0] = l[1] * psi[2] - l[2] * psi[1];
-            g[1] = l[2] * psi[0] - l[0] * psi[2];
-            g[2] = l[0] * psi[1] - l[1] * psi[0];
-        }
-    }
+    vl_work_predict(e, e->cfg.estimate_input_offsets);
     const double sv2 = e->linear_velocity_var * noise_share;
     const double sw2 = e->angular_velocity_var * noise_share;
     const double noise_var[6] = {sv2, sv2, sv2, sw2, sw2, sw2};
     const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
     const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
     const double offset_var[6] = {qv, qv, qv, qw, qw, qw};
-    vl_la_propagate(e->P, VL_LD, (int)n, G, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL,
-                    e->work_PHt + (size_t)6 * n);
+    vl_predict_defer(e, Gp, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL);
+}
+
+/*
+ * Between updates the landmarks do not move, so every step's G = B Gp with B
+ * (n x 6) fixed: identity on the pose rows, zero on the offsets', hat(l_s) times
+ * the rotation rows' selector on landmark s (zero when mapping). As B has no
+ * offset rows (E^T B = 0), with U = [B, E] each step's Phi = I + G E^T moves U
+ * within itself, Phi U = U F with F = [I Gp; 0 I] (12 x 12), and K steps give
+ *   P_K = (I + U Y E^T) P_0 (I + U Y E^T)^T + U A U^T,
+ * Y the offset columns of F_K ... F_1 - I (today [sum Gp; 0]) and A the noise
+ * G Q G^T and the offsets' walk propagated as the core block itself is, from
+ * zero: the sequential recursion exactly, in exact arithmetic. So a step
+ * propagates the core block, A and Y (O(1)); vl_predict_settle applies the rest.
+ *
+ * A diagonal per-step offset transition a (a Gauss-Markov offset, a = 1 today)
+ * fits the same accumulators: F = [I Gp; 0 diag(a)], the core block and A
+ * propagate with it, and Y <- (F (I + [0 Y])) - I in its offset columns, i.e.
+ * Y_pose += Gp (I + Y_offset) and Y_offset <- diag(a) (I + Y_offset) - I;
+ * vl_la_settle applies I + U Y E^T whatever Y's offset rows hold.
+ */
+void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double noise_var[6], const double offset_var[6])
+{
+    vl_deferred_prediction_t *d = &e->deferred;
+    if (d->steps == 0) {
+        for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
+            memcpy(&d->core0[VL_CORE_DIM * j], &e->P[(size_t)j * VL_LD], VL_CORE_DIM * sizeof(double));
+        }
+        memset(d->transition, 0, sizeof(d->transition));
+        memset(d->noise, 0, sizeof(d->noise));
+    }
+    /* The step's G on the core: Gp on the pose rows, zero on the offsets'. Column-major 12 x 6. */
+    double G[VL_CORE_DIM * 6], work[VL_CORE_DIM * 6];
+    for (int j = 0; j < 6; ++j) {
+        for (int i = 0; i < 6; ++i) {
+            G[VL_CORE_DIM * j + i] = Gp[6 * i + j];
+            G[VL_CORE_DIM * j + 6 + i] = 0.0;
+        }
+    }
+    vl_la_propagate(e->P, VL_LD, VL_CORE_DIM, G, noise_var, offset_var, work);
+    vl_la_propagate(d->noise, VL_CORE_DIM, VL_CORE_DIM, G, noise_var, offset_var, work);
+    if (offset_var != NULL) {
+        for (int j = 0; j < 6; ++j) {
+            for (int i = 0; i < 6; ++i) {
+                d->transition[VL_CORE_DIM * j + i] += Gp[6 * i + j];
+            }
+        }
+    }
+    d->steps++;
+}
+
+void vl_predict_settle(vl_estimator_t *e)
+{
+    if (e->deferred.steps == 0) {
+        return;
+    }
+    const uint32_t n = vl_state_dim(e);
+    const int moving =
+        e->cfg.mode != VL_MODE_MAPPING; /* mapping takes the trajectory as known: B's landmark rows are 0 */
+    vl_la_settle(e->P, VL_LD, (int)n, &e->deferred, moving ? e->landmark_state : NULL, e->work_PHt);
+    vl_work_settle(e, n, moving);
+    e->deferred.steps = 0;
+}
+
+void vl_predict_landmark_block(const vl_estimator_t *e, uint32_t slot, double B[36])
+{
+    const uint32_t c = vl_landmark_col(slot);
+    const uint32_t idx[6] = {VL_IDX_PHI, VL_IDX_PHI + 1, VL_IDX_PHI + 2, c, c + 1, c + 2};
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < 6; ++j) {
+            B[6 * i + j] = e->P[(size_t)idx[j] * VL_LD + idx[i]];
+        }
+    }
+    if (e->deferred.steps == 0) {
+        return;
+    }
+    double cross[3 * VL_CORE_DIM], block[9];
+    const double *point = e->cfg.mode != VL_MODE_MAPPING ? vl_landmark_point(e, slot) : NULL;
+    vl_la_settled_landmark(e->P, VL_LD, (int)c, &e->deferred, point, cross, block);
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            const double lr = cross[3 * (VL_IDX_PHI + j) + i]; /* landmark row i, rotation column j */
+            B[6 * (3 + i) + j] = lr;
+            B[6 * j + 3 + i] = lr;
+            B[6 * (3 + i) + 3 + j] = block[3 * j + i];
+        }
+    }
 }
 
 /* Without a trusted sample there is no motion to integrate: the clock moves alone. */

@@ -23,4 +23,26 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime);
  */
 void vl_predict_to_sample(vl_estimator_t *e, const vl_imu_sample_t *imu);
 
+/**
+ * One prediction step's covariance: P's core block and the deferred
+ * accumulators (e->deferred) move by the step with pose input Jacobian Gp
+ * (6 x 6 row-major: G = -tau Ad(T) J_r); the landmark rows wait for
+ * vl_predict_settle. offset_var is NULL when the offsets are not estimated.
+ */
+void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double noise_var[6], const double offset_var[6]);
+
+/**
+ * Applies the deferred prediction to the whole of P, which then equals the
+ * step-by-step propagation (to rounding). Every entry point calls it once,
+ * before anything beyond P's core block is read or written (vl_P asserts it);
+ * nothing when no step is pending.
+ */
+void vl_predict_settle(vl_estimator_t *e);
+
+/**
+ * The covariance of a window landmark with the rotation error, settled or not:
+ * the 6 x 6 row-major block over [phi, landmark], as vl_predict_settle would leave it.
+ */
+void vl_predict_landmark_block(const vl_estimator_t *e, uint32_t slot, double B[36]);
+
 #endif /* VISLAM_VL_PREDICT_H */

@@ -141,7 +141,7 @@ vl_status_t vl_update_apply(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t
     }
     vl_la_workspace_t ws = {e->work_PHt, e->work_S, e->work_dx, e->cfg.parallel_for, e->cfg.parallel_ctx};
     const uint32_t n = vl_state_dim(e);
-    if (vl_la_update(e->P, VL_LD, (int)n, rows, (int)m, &ws) != 0 || !vl_all_finite(e->work_dx, (int)n)) {
+    if (vl_la_update(vl_P(e), VL_LD, (int)n, rows, (int)m, &ws) != 0 || !vl_all_finite(e->work_dx, (int)n)) {
         e->counters.numerical_failures++;
         return VL_ERR_NOT_POSITIVE_DEFINITE;
     }

@@ -14,6 +14,7 @@
 #include "vl_estimator_internal.h"
 #include "vl_guard.h"
 #include "vl_linalg.h"
+#include "vl_predict.h"
 #include "vl_se3.h"
 #include "vl_stereo.h"
 #include "vl_update.h"
@@ -39,14 +40,8 @@ void vl_window_landmark(const vl_estimator_t *e, uint32_t slot, vl_landmark_t *o
     const vl_landmark_slot_t *s = &e->slots[slot];
     const double *l = vl_landmark_point(e, slot);
     memcpy(out->position, l, 3 * sizeof(double));
-    const uint32_t c = vl_landmark_col(slot);
-    const uint32_t idx[6] = {VL_IDX_PHI, VL_IDX_PHI + 1, VL_IDX_PHI + 2, c, c + 1, c + 2};
-    double B[36];
-    for (int i = 0; i < 6; ++i) {
-        for (int j = 0; j < 6; ++j) {
-            B[6 * i + j] = e->P[(size_t)idx[j] * VL_LD + idx[i]];
-        }
-    }
+    double B[36]; /* over [phi, landmark]; between updates with the deferred prediction applied */
+    vl_predict_landmark_block(e, slot, B);
     double J[18] = {0};
     if (e->cfg.mode != VL_MODE_MAPPING) {
         double S[9];
@@ -76,7 +71,7 @@ void vl_window_marginalize(vl_estimator_t *e, uint32_t slot)
     }
     const uint32_t last = e->num_landmarks - 1u;
     if (slot != last) {
-        vl_la_move_block(e->P, VL_LD, (int)vl_state_dim(e), (int)vl_landmark_col(slot), (int)vl_landmark_col(last));
+        vl_la_move_block(vl_P(e), VL_LD, (int)vl_state_dim(e), (int)vl_landmark_col(slot), (int)vl_landmark_col(last));
         e->slots[slot] = e->slots[last];
         memcpy(&e->landmark_state[3 * slot], &e->landmark_state[3 * last], 3 * sizeof(double));
         e->work_seen[slot] = e->work_seen[last];
@@ -104,7 +99,7 @@ static void admit_landmark(vl_estimator_t *e, int32_t id, const double y[3])
         }
     }
     vl_stereo_noise_var(e->pixel_var, noise);
-    vl_la_append_landmark(e->P, VL_LD, (int)vl_state_dim(e), J_pose, J_obs, noise);
+    vl_la_append_landmark(vl_P(e), VL_LD, (int)vl_state_dim(e), J_pose, J_obs, noise);
 
     s->id = id;
     s->observations = 1;

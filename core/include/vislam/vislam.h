@@ -293,7 +293,8 @@ typedef struct {
  */
 typedef struct {
     uint64_t flops;      /**< all stages below, flops */
-    uint64_t predict;    /**< prediction to the input's time (covariance rank updates), flops */
+    uint64_t predict;    /**< prediction to the input's time (the core block), and in a frame the deferred
+                              prediction applied to the rest of P (one structured rank-6 pass), flops */
     uint64_t gate;       /**< innovation gate of the tracked observations, flops */
     uint64_t ransac;     /**< 1-point RANSAC: hypotheses x (one-row correction + residuals), flops */
     uint64_t update;     /**< the joint update on the inliers and the noise adaptation after it, flops */
@@ -332,6 +333,20 @@ typedef struct {
     double noise_var[3];  /**< observation noise diagonal, px^2 */
     int landmark_col;     /**< first state index of the landmark */
 } vl_obs_row_t;
+
+/**
+ * The prediction's effect on P not yet applied beyond the core block (vl_predict.c).
+ * Between updates the landmarks do not move and every step's input Jacobian is
+ * G = B Gp with B fixed, so K steps act on P as P <- (I + U Y E^T) P (...)^T + U A U^T
+ * with U = [B, E] (E selecting the offsets): Y and A are the steps' transition and
+ * noise in core coordinates, and the core block itself is kept current.
+ */
+typedef struct {
+    uint32_t steps;                          /**< prediction steps accumulated since P was last settled */
+    double core0[VL_CORE_DIM * VL_CORE_DIM]; /**< P's core block before the first of them, column-major */
+    double transition[VL_CORE_DIM * 6];      /**< Y: offset columns of the steps' core transition less I, 12 x 6 */
+    double noise[VL_CORE_DIM * VL_CORE_DIM]; /**< A: their noise, carried to the last step, 12 x 12 */
+} vl_deferred_prediction_t;
 
 /** Capacity of the pending-track table. */
 #define VL_MAX_PENDING (2 * VL_MAX_FRAME_FEATURES)
@@ -387,6 +402,9 @@ typedef struct {
     /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
     uint32_t num_prev_obs;
     vl_stereo_obs_t prev_obs[VL_MAX_FRAME_FEATURES];
+
+    /** Prediction steps applied to P's core block only (vl_predict_settle applies them to the rest). */
+    vl_deferred_prediction_t deferred;
 
     /** Joint covariance, column-major with leading dimension VL_STATE_DIM_MAX. */
     double P[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX] VL_ALIGNED(VL_ESTIMATOR_ALIGN);

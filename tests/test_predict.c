@@ -1,0 +1,295 @@
+/*
+ * The deferred prediction (vl_predict.c): K steps accumulated in core
+ * coordinates and applied to P once give the step-by-step propagation
+ * P <- Phi P Phi^T + G Q G^T + E W E^T (written out densely here), and P's
+ * core block is current after every step.
+ */
+#include <math.h>
+#include <string.h>
+
+#include "unity.h"
+#include "vl_estimator_internal.h"
+#include "vl_predict.h"
+#include "vl_se3.h"
+#include "vl_test_util.h"
+#include "vislam/vislam.h"
+
+#define LANDMARKS 6
+#define N (VL_CORE_DIM + 3 * LANDMARKS)
+
+static vl_estimator_t est;
+static vl_estimator_t settled; /* a copy of est, settled, to compare readers against */
+static vl_stereo_frame_t frame;
+static uint64_t rng = 0x9e3779b97f4a7c15ull;
+
+void setUp(void)
+{
+}
+
+void tearDown(void)
+{
+}
+
+/* Uniform in [-1, 1) (xorshift64*): the same sequence on every host. */
+static double uniform(void)
+{
+    rng ^= rng >> 12;
+    rng ^= rng << 25;
+    rng ^= rng >> 27;
+    return (double)((rng * 0x2545f4914f6cdd1dull) >> 11) / 9007199254740992.0 * 2.0 - 1.0;
+}
+
+/* C = A B for dense row-major n x n matrices. */
+static void matmul_n(const double *A, const double *B, double *C, int n)
+{
+    for (int i = 0; i < n; ++i) {
+        for (int j = 0; j < n; ++j) {
+            double s = 0.0;
+            for (int k = 0; k < n; ++k) {
+                s += A[n * i + k] * B[n * k + j];
+            }
+            C[n * i + j] = s;
+        }
+    }
+}
+
+/*
+ * An initialized estimator whose window holds LANDMARKS random points and whose
+ * P (n x n, also returned row-major in Pref) is a random SPD matrix; with the
+ * offsets off their rows and columns are zero, as the estimator keeps them.
+ */
+static void random_state(vl_mode_t mode, int offsets, double *Pref)
+{
+    vl_config_t cfg;
+    vl_config_default(&cfg);
+    vl_test_kitti_calibration(&cfg.calibration, 1);
+    cfg.mode = mode;
+    cfg.estimate_input_offsets = offsets;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    est.num_landmarks = LANDMARKS;
+    for (int i = 0; i < 3 * LANDMARKS; ++i) {
+        est.landmark_state[i] = 20.0 * uniform();
+    }
+    double A[N * N];
+    for (int i = 0; i < N * N; ++i) {
+        A[i] = uniform();
+    }
+    for (int i = 0; i < N; ++i) {
+        for (int j = 0; j < N; ++j) {
+            double s = (i == j) ? 0.5 : 0.0;
+            for (int k = 0; k < N; ++k) {
+                s += A[N * i + k] * A[N * j + k];
+            }
+            const int offset_ij = (i >= 6 && i < 12) || (j >= 6 && j < 12);
+            Pref[N * i + j] = (offsets || !offset_ij) ? 0.01 * s : 0.0;
+            *vl_P_at(&est, (uint32_t)i, (uint32_t)j) = Pref[N * i + j];
+        }
+    }
+}
+
+/* One step, densely: G = B Gp, Phi = I + G E^T (offsets), P <- Phi P Phi^T + G Q G^T + E W E^T. */
+static void dense_step(vl_mode_t mode, const double Gp[36], const double q[6], const double *w, double *P)
+{
+    static double G[N * 6], Phi[N * N], T[N * N], PhiT[N * N];
+    memset(G, 0, sizeof(G));
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < 6; ++j) {
+            G[6 * i + j] = Gp[6 * i + j];
+        }
+    }
+    for (int s = 0; s < LANDMARKS && mode != VL_MODE_MAPPING; ++s) {
+        const double *l = &est.landmark_state[3 * s];
+        double L[9];
+        vl_skew(l, L);
+        for (int r = 0; r < 3; ++r) {
+            for (int j = 0; j < 6; ++j) {
+                double v = 0.0;
+                for (int k = 0; k < 3; ++k) {
+                    v += L[3 * r + k] * Gp[6 * (3 + k) + j];
+                }
+                G[6 * (VL_CORE_DIM + 3 * s + r) + j] = v;
+            }
+        }
+    }
+    for (int i = 0; i < N; ++i) {
+        for (int j = 0; j < N; ++j) {
+            Phi[N * i + j] = (i == j) ? 1.0 : 0.0;
+            if (w != NULL && j >= 6 && j < 12) {
+                Phi[N * i + j] += G[6 * i + (j - 6)];
+            }
+        }
+    }
+    matmul_n(Phi, P, T, N);
+    for (int i = 0; i < N; ++i) {
+        for (int j = 0; j < N; ++j) {
+            PhiT[N * i + j] = Phi[N * j + i];
+        }
+    }
+    matmul_n(T, PhiT, P, N);
+    for (int i = 0; i < N; ++i) {
+        for (int j = 0; j < N; ++j) {
+            for (int k = 0; k < 6; ++k) {
+                P[N * i + j] += G[6 * i + k] * q[k] * G[6 * j + k];
+            }
+        }
+    }
+    for (int k = 0; k < 6 && w != NULL; ++k) {
+        P[N * (6 + k) + 6 + k] += w[k];
+    }
+}
+
+/* Largest |P(i, j) - Pref(i, j)| over the first `dim` rows and columns, relative to max |Pref|. */
+static double relative_error(const double *Pref, int dim)
+{
+    double err = 0.0, scale = 0.0;
+    for (int i = 0; i < dim; ++i) {
+        for (int j = 0; j < dim; ++j) {
+            const double ref = Pref[N * i + j];
+            err = fmax(err, fabs(est.P[(size_t)j * VL_LD + i] - ref));
+            scale = fmax(scale, fabs(ref));
+        }
+    }
+    return err / scale;
+}
+
+static void check_deferred_matches_sequential(vl_mode_t mode, int offsets, int steps)
+{
+    static double Pref[N * N];
+    random_state(mode, offsets, Pref);
+    for (int k = 0; k < steps; ++k) {
+        double Gp[36], q[6], w[6];
+        for (int i = 0; i < 36; ++i) {
+            Gp[i] = 0.3 * uniform();
+        }
+        for (int i = 0; i < 6; ++i) {
+            q[i] = 0.01 * (1.5 + uniform());
+            w[i] = 0.001 * (1.5 + uniform());
+        }
+        dense_step(mode, Gp, q, offsets ? w : NULL, Pref);
+        vl_predict_defer(&est, Gp, q, offsets ? w : NULL);
+        TEST_ASSERT_EQUAL_UINT32((uint32_t)k + 1u, est.deferred.steps);
+        /* The core block (what vl_get_pose reads) is current between updates. */
+        TEST_ASSERT_TRUE(relative_error(Pref, VL_CORE_DIM) < 1e-12);
+        /* So is what vl_get_landmarks reports, computed from the accumulators. */
+        for (uint32_t s = 0; s < LANDMARKS; ++s) {
+            double B[36];
+            vl_predict_landmark_block(&est, s, B);
+            const uint32_t c = vl_landmark_col(s);
+            const uint32_t idx[6] = {3, 4, 5, c, c + 1, c + 2};
+            for (int i = 0; i < 6; ++i) {
+                for (int j = 0; j < 6; ++j) {
+                    const double ref = Pref[N * idx[i] + idx[j]];
+                    TEST_ASSERT_DOUBLE_WITHIN(1e-10 * (1.0 + fabs(ref)), ref, B[6 * i + j]);
+                }
+            }
+        }
+    }
+    double core[VL_CORE_DIM * VL_CORE_DIM];
+    for (int j = 0; j < VL_CORE_DIM; ++j) {
+        memcpy(&core[VL_CORE_DIM * j], &est.P[(size_t)j * VL_LD], sizeof(double) * VL_CORE_DIM);
+    }
+    vl_predict_settle(&est);
+    TEST_ASSERT_EQUAL_UINT32(0, est.deferred.steps);
+    const double err = relative_error(Pref, N);
+    TEST_ASSERT_TRUE_MESSAGE(err < 1e-10, "the settled P differs from the sequential propagation");
+    for (int j = 0; j < VL_CORE_DIM; ++j) {
+        TEST_ASSERT_EQUAL_MEMORY(&core[VL_CORE_DIM * j], &est.P[(size_t)j * VL_LD], sizeof(double) * VL_CORE_DIM);
+    }
+    for (int i = 0; i < N; ++i) {
+        for (int j = 0; j < i; ++j) {
+            TEST_ASSERT_EQUAL_DOUBLE(est.P[(size_t)j * VL_LD + i], est.P[(size_t)i * VL_LD + j]);
+        }
+    }
+}
+
+void test_slam_with_offsets(void)
+{
+    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 1);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 2);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 7);
+}
+
+void test_slam_without_offsets(void)
+{
+    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 1);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 2);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 7);
+}
+
+void test_mapping_with_and_without_offsets(void)
+{
+    for (int offsets = 0; offsets <= 1; ++offsets) {
+        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, 1);
+        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, 2);
+        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, 7);
+    }
+}
+
+/*
+ * Through the API: IMU samples leave the steps pending and the pose current; a
+ * frame settles them; vl_get_landmarks between the two reports what a settled
+ * P holds.
+ */
+void test_samples_defer_and_a_frame_settles(void)
+{
+    vl_config_t cfg;
+    vl_config_default(&cfg);
+    vl_test_kitti_calibration(&cfg.calibration, 1);
+    cfg.min_track_length = 1;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = vl_test_imu_at(1000000, 1.0, 0.1);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    frame.utime = s.utime;
+    frame.count = 20;
+    for (uint32_t i = 0; i < frame.count; ++i) {
+        double pw[3];
+        vl_test_point_ahead(i, pw);
+        vl_test_observe(&cfg.calibration, pw, (int32_t)i, &frame.obs[i]);
+    }
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(20, vl_window_size(&est));
+    TEST_ASSERT_EQUAL_UINT32(0, est.deferred.steps);
+    for (int k = 0; k < 5; ++k) {
+        s.utime += 10000;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    }
+    TEST_ASSERT_EQUAL_UINT32(5, est.deferred.steps);
+
+    memcpy(&settled, &est, sizeof(est));
+    vl_predict_settle(&settled);
+    vl_pose_t pose, pose_settled;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&settled, &pose_settled));
+    TEST_ASSERT_EQUAL_MEMORY(pose_settled.covariance, pose.covariance, sizeof(pose.covariance));
+    vl_landmark_t lm[20], lm_settled[20];
+    size_t count = 0;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_landmarks(&est, lm, 20, &count));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_landmarks(&settled, lm_settled, 20, &count));
+    for (int i = 0; i < 20; ++i) {
+        VL_TEST_ASSERT_CLOSE(lm_settled[i].covariance, lm[i].covariance, 9, 1e-12);
+    }
+
+    /* A frame applies the steps before it reads P. */
+    frame.utime = s.utime + 5000;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(0, est.deferred.steps);
+    /* A refused frame leaves them pending; vl_flush_landmarks applies them too. */
+    s.utime += 10000;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    frame.utime = s.utime - 1;
+    TEST_ASSERT_EQUAL_INT(VL_ERR_TIME_ORDER, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(1, est.deferred.steps);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_flush_landmarks(&est));
+    TEST_ASSERT_EQUAL_UINT32(0, est.deferred.steps);
+    TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
+}
+
+int main(void)
+{
+    UNITY_BEGIN();
+    RUN_TEST(test_slam_with_offsets);
+    RUN_TEST(test_slam_without_offsets);
+    RUN_TEST(test_mapping_with_and_without_offsets);
+    RUN_TEST(test_samples_defer_and_a_frame_settles);
+    return UNITY_END();
+}
