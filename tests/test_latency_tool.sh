@@ -6,6 +6,7 @@
 # in-process: two passes as fast as possible without vislamd; the JSON has every key, its
 #   percentiles are ordered (min <= p50 <= p99 <= p999 <= max), steps = frames in the log x
 #   passes (frames counted by vl_log_inspect), the work per step is positive with max >= p50,
+#   every IMU step does the same work, a frame with the IMU steps before it at least its own,
 #   and the jitter probe ran; no CPU latency request unless asked (cpu_dma_latency_us null).
 #   Then one pass with --cpu-dma-latency 0: it succeeds, the JSON reports 0, and it says the
 #   request was held exactly when /dev/cpu_dma_latency is writable here (refused, a warning
@@ -51,7 +52,8 @@ facts() {
   "$PYTHON" - "$1" "$2" "$PASSES" <<'PY'
 import json, os, sys
 d = json.load(open(sys.argv[1]))
-keys = ["window", "steps", "step_us", "e2e_us", "lcm_overhead_us", "jitter_floor_us", "overruns", "work"]
+keys = ["window", "steps", "step_us", "e2e_us", "lcm_overhead_us", "jitter_floor_us", "overruns", "work",
+        "propagate_work", "frame_work"]
 print("keys_ok", int(all(k in d for k in keys)))
 def ordered(s):
     return int(s is not None and s["min"] <= s["p50"] <= s["p99"] <= s["p999"] <= s["max"])
@@ -61,6 +63,9 @@ print("steps", d["steps"])
 print("window", d["window"])
 print("overruns_int", int(isinstance(d["overruns"], int) and d["overruns"] >= 0))
 print("work_ok", int(d["work"]["max"] >= d["work"]["p50"] > 0))
+pw, fw, w = d["propagate_work"], d["frame_work"], d["work"]
+print("propagate_work_flat", int(pw["max"] == pw["p50"] > 0))
+print("frame_work_ok", int(fw["p50"] >= w["p50"] and fw["max"] >= w["max"]))
 j = d["jitter_floor_us"]
 print("jitter_ok", int(j is not None and j["samples"] > 0 and j["max"] >= 0))
 print("e2e_returned", d["e2e_frames"]["returned"])
@@ -118,6 +123,8 @@ check "steps = $frames frames x $PASSES passes" eq "$(value "$OUT/facts" steps)"
 check "window = the default 128" eq "$(value "$OUT/facts" window)" 128
 check "step percentiles ordered" eq "$(value "$OUT/facts" step_ordered)" 1
 check "work max >= p50 > 0" eq "$(value "$OUT/facts" work_ok)" 1
+check "an IMU step's work does not depend on the state: max = p50 > 0" eq "$(value "$OUT/facts" propagate_work_flat)" 1
+check "a frame's work with the IMU steps before it >= the frame step's" eq "$(value "$OUT/facts" frame_work_ok)" 1
 check "overruns counted" eq "$(value "$OUT/facts" overruns_int)" 1
 check "the jitter probe ran" eq "$(value "$OUT/facts" jitter_ok)" 1
 if [ "$MODE" = e2e ]; then

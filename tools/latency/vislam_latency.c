@@ -85,6 +85,7 @@ typedef struct {
 typedef struct {
     int64_t ns;
     vl_work_t work;
+    uint64_t frame_flops; /* work plus the IMU steps' since the previous frame: the frame period's work */
     int64_t utime;
     int pass;
     uint32_t frame;
@@ -473,7 +474,8 @@ static int build_config(vl_config_t *cfg, vl_config_file_info_t *info)
  * Runs the log through a fresh session `passes` times on the calling thread;
  * fills steps (one per vl_update) and propagation times (us).
  */
-static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double *prop_us, size_t *nprop)
+static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double *prop_us, double *prop_work,
+                          size_t *nprop)
 {
     vl_config_t cfg;
     vl_config_file_info_t info;
@@ -506,6 +508,7 @@ static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double
         const int64_t start = vl_clock_monotonic_us();
         const int64_t first = lg->events[0].log_utime;
         uint32_t frame = 0;
+        uint64_t since_frame = 0; /* the IMU steps' work since the last frame step */
         for (size_t i = 0; i < lg->count; ++i) {
             const vl_log_event_t *ev = &lg->events[i];
             if (!opt.rate_max) {
@@ -520,10 +523,16 @@ static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double
                 step_t *s = &steps[(*nsteps)++];
                 s->ns = t1 - t0;
                 vl_get_work(vl_session_estimator(&session), &s->work);
+                s->frame_flops = s->work.flops + since_frame;
+                since_frame = 0;
                 s->utime = ev->frame.utime;
                 s->pass = pass;
                 s->frame = frame;
             } else if (step == VL_SESSION_STEP_PROPAGATE) {
+                vl_work_t w;
+                vl_get_work(vl_session_estimator(&session), &w);
+                since_frame += w.flops;
+                prop_work[*nprop] = (double)w.flops;
                 prop_us[(*nprop)++] = (double)(t1 - t0) * 1e-3;
             }
             frame += ev->kind == VL_LOG_EVENT_FRAME;
@@ -1104,6 +1113,8 @@ typedef struct {
     int jitter_cpus;
     uint64_t jitter_samples;
     double work_p50, work_max, work_mean;
+    summary_t prop_work;     /* each IMU step's work */
+    summary_t frame_work;    /* each frame step's work plus the IMU steps' before it */
     const step_t *costliest; /* slowest step */
     const step_t *heaviest;  /* step with the most work */
     uint64_t overruns;       /* in-process steps over the budget */
@@ -1211,6 +1222,11 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
     }
     fprintf(f, "  \"work\": {\"p50\": %.0f, \"max\": %.0f, \"mean\": %.0f, \"max_ratio_to_p50\": %.3f},\n",
             res->work_p50, res->work_max, res->work_mean, res->work_p50 > 0 ? res->work_max / res->work_p50 : 0.0);
+    fprintf(f, "  \"propagate_work\": {\"p50\": %.0f, \"max\": %.0f, \"mean\": %.0f},\n", res->prop_work.p50,
+            res->prop_work.max, res->prop_work.mean);
+    fprintf(f, "  \"frame_work\": {\"p50\": %.0f, \"max\": %.0f, \"mean\": %.0f, \"max_ratio_to_p50\": %.3f},\n",
+            res->frame_work.p50, res->frame_work.max, res->frame_work.mean,
+            res->frame_work.p50 > 0 ? res->frame_work.max / res->frame_work.p50 : 0.0);
     write_step(f, "costliest_step", res->costliest, res, ",");
     write_step(f, "heaviest_step", res->heaviest, res, ",");
     fprintf(f, "  \"callgrind_instructions_per_update\": ");
@@ -1335,7 +1351,8 @@ int main(int argc, char **argv)
     double *prop_us = (double *)calloc(lg.count * (size_t)opt.passes, sizeof(double));
     double *step_us = (double *)calloc(max_steps, sizeof(double));
     double *work = (double *)calloc(max_steps, sizeof(double));
-    if (steps == NULL || prop_us == NULL || step_us == NULL || work == NULL) {
+    double *prop_work = (double *)calloc(lg.count * (size_t)opt.passes, sizeof(double));
+    if (steps == NULL || prop_us == NULL || step_us == NULL || work == NULL || prop_work == NULL) {
         fprintf(stderr, "vislam-latency: out of memory\n");
         return EXIT_INCOMPLETE;
     }
@@ -1396,7 +1413,7 @@ int main(int argc, char **argv)
                 lg.frames, opt.passes, opt.rate_max ? "max" : "sensor", opt.cpu, opt.other_cpu,
                 opt.load ? ", load on the other CPU" : "");
     }
-    const int ip_rc = run_in_process(&lg, steps, &nsteps, prop_us, &nprop);
+    const int ip_rc = run_in_process(&lg, steps, &nsteps, prop_us, prop_work, &nprop);
     {
         uint64_t tasks = 0, worker_tasks = 0;
         vl_worker_counts(&g_worker, &res.worker_loops, &tasks, &worker_tasks);
@@ -1465,6 +1482,11 @@ int main(int argc, char **argv)
     res.work_p50 = w.p50;
     res.work_max = w.max;
     res.work_mean = w.mean;
+    res.prop_work = summarize(prop_work, nprop);
+    for (size_t i = 0; i < nsteps; ++i) {
+        work[i] = (double)steps[i].frame_flops;
+    }
+    res.frame_work = summarize(work, nsteps);
     static vl_latency_t jmerged;
     vl_jitter_merged(&jit, &jmerged);
     res.jitter_samples = vl_latency_count(&jmerged);
@@ -1522,6 +1544,10 @@ int main(int argc, char **argv)
             res.overruns, res.e2e_overruns);
     fprintf(stderr, "  work per step (core's count): p50 %.3g  max %.3g flops (max/p50 %.2f)\n", res.work_p50,
             res.work_max, res.work_p50 > 0 ? res.work_max / res.work_p50 : 0.0);
+    fprintf(
+        stderr,
+        "  work per IMU step: p50 %.3g  max %.3g flops; per frame with the IMU steps before it: p50 %.3g  max %.3g\n",
+        res.prop_work.p50, res.prop_work.max, res.frame_work.p50, res.frame_work.max);
     const step_t *c = res.costliest;
     fprintf(stderr,
             "  costliest step: pass %d frame %u, %.1f us = %.2fx the median; its work %.3g flops = %.2fx the median "
@@ -1558,6 +1584,7 @@ int main(int argc, char **argv)
     }
     free(steps);
     free(prop_us);
+    free(prop_work);
     free(step_us);
     free(work);
     free(e2e.us);
