@@ -95,6 +95,30 @@ def test_start_step_max_steps_and_prefix(vislam_types, synthetic_npz, tmp_path):
     assert vislam_types.stereo_frame_t.decode(events[4][2]).num_features == 0
 
 
+def test_imu_per_step_interpolates_between_steps(vislam_types, synthetic_npz, tmp_path):
+    npz_path, d, _ = synthetic_npz
+    out = tmp_path / "fast.lcmlog"
+    assert main([str(npz_path), str(out), "--imu-per-step", "4", "--max-steps", "3"]) == 0
+    events = read_events(out)
+    step = ["VISLAM_IMU", "VISLAM_FEATURES"]
+    assert [c for _, c, _ in events] == ["VISLAM_CALIB"] + (step + ["VISLAM_IMU"] * 3) * 2 + step
+    utimes = np.round(d["time_stamps"][0] * 1e6).astype(np.int64)
+    imus = [vislam_types.imu_t.decode(data) for _, c, data in events if c == "VISLAM_IMU"]
+    assert [i.utime for i in imus[::4]] == list(utimes[:3])
+    assert all(a.utime < b.utime for a, b in zip(imus, imus[1:]))
+    for t in range(2):
+        for j in range(4):
+            w = j / 4
+            imu = imus[4 * t + j]
+            assert imu.utime == utimes[t] + round(w * (utimes[t + 1] - utimes[t]))
+            np.testing.assert_allclose(imu.linear_velocity,
+                                       (1 - w) * d["linear_velocity"][:, t] + w * d["linear_velocity"][:, t + 1])
+            np.testing.assert_allclose(imu.angular_velocity, (1 - w) * d["rotational_velocity"][:, t]
+                                       + w * d["rotational_velocity"][:, t + 1])
+    with pytest.raises(ToolError, match="imu-per-step"):
+        convert(npz_path, tmp_path / "bad.lcmlog", imu_per_step=0)
+
+
 def test_calibration_read_back_from_log(vislam_types, synthetic_npz, tmp_path):
     npz_path, d, _ = synthetic_npz
     out = tmp_path / "syn.lcmlog"

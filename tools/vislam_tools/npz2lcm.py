@@ -4,6 +4,9 @@ The log replays with lcm-logplayer. Events, all with event utime = message utime
     <prefix>CALIB     vislam.calibration_t   once, first, at the first step's time
     <prefix>IMU       vislam.imu_t           every step, before that step's features
     <prefix>FEATURES  vislam.stereo_frame_t  every step (possibly with 0 features)
+With --imu-per-step R, R - 1 more IMU samples follow each step's features (not the last
+step's), evenly spaced up to the next step, the velocities linear between the two steps':
+a log with an R times faster IMU, for measuring the estimator's cost per frame period.
 """
 
 import argparse
@@ -28,12 +31,15 @@ def build_parser():
     p.add_argument("output", metavar="OUT.lcmlog", help="LCM event log to write (overwritten)")
     p.add_argument("--max-steps", type=int, default=None, metavar="N", help="convert at most N steps")
     p.add_argument("--start-step", type=int, default=0, metavar="K", help="first step to convert (default 0)")
+    p.add_argument("--imu-per-step", type=int, default=1, metavar="R",
+                   help="IMU samples per step: R - 1 more, interpolated, between steps (default 1)")
     p.add_argument("--channel-prefix", default=channels.PREFIX,
                    help=f"channel name prefix (default {channels.PREFIX})")
     return p
 
 
-def convert(input_path, output_path, start_step=0, max_steps=None, prefix=channels.PREFIX, err=None):
+def convert(input_path, output_path, start_step=0, max_steps=None, prefix=channels.PREFIX, err=None,
+            imu_per_step=1):
     """Write the log; returns a summary dict. Warnings go to err (default: sys.stderr)."""
     err = sys.stderr if err is None else err
     vislam = load()
@@ -54,6 +60,8 @@ def convert(input_path, output_path, start_step=0, max_steps=None, prefix=channe
     stop = n_steps if max_steps is None else min(n_steps, start_step + max(max_steps, 0))
     if stop <= start_step:
         raise ToolError("nothing to convert (--max-steps must be >= 1)")
+    if imu_per_step < 1:
+        raise ToolError("--imu-per-step must be >= 1")
     if np.any(np.diff(ts[start_step:stop]) <= 0):
         raise ToolError(f"{input_path}: time_stamps are not strictly increasing")
 
@@ -110,6 +118,13 @@ def convert(input_path, output_path, start_step=0, max_steps=None, prefix=channe
             log.write_event(utime, ch_feat, frame.encode())
             events += 2
             observations += n
+            for j in range(1, imu_per_step if t + 1 < stop else 1):
+                w = j / imu_per_step
+                imu.utime = int(utimes[t] + round(w * (utimes[t + 1] - utimes[t])))
+                imu.linear_velocity = ((1.0 - w) * lin[:, t] + w * lin[:, t + 1]).tolist()
+                imu.angular_velocity = ((1.0 - w) * ang[:, t] + w * ang[:, t + 1]).tolist()
+                log.write_event(imu.utime, ch_imu, imu.encode())
+                events += 1
     finally:
         log.close()
     if dropped:
@@ -127,7 +142,8 @@ def convert(input_path, output_path, start_step=0, max_steps=None, prefix=channe
 def main(argv=None):
     args = build_parser().parse_args(argv)
     try:
-        s = convert(args.input, args.output, args.start_step, args.max_steps, args.channel_prefix)
+        s = convert(args.input, args.output, args.start_step, args.max_steps, args.channel_prefix,
+                    imu_per_step=args.imu_per_step)
     except ToolError as exc:
         print(f"npz2lcm: error: {exc}", file=sys.stderr)
         return 1
