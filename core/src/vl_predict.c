@@ -78,12 +78,12 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
  * offset rows (E^T B = 0), with U = [B, E] each step's Phi = I + G E^T moves U
  * within itself, Phi U = U F with F = [I Gp; 0 I] (12 x 12), and K steps give
  *   P_K = (I + U Y E^T) P_0 (I + U Y E^T)^T + U A U^T,
- * Y the offset columns of F_K ... F_1 - I (today [sum Gp; 0]) and A the noise
+ * Y the offset columns of F_K ... F_1 - I (here [sum Gp; 0]) and A the noise
  * G Q G^T and the offsets' walk propagated as the core block itself is, from
  * zero: the sequential recursion exactly, in exact arithmetic. So a step
  * propagates the core block, A and Y (O(1)); vl_predict_settle applies the rest.
  *
- * A diagonal per-step offset transition a (a Gauss-Markov offset, a = 1 today)
+ * A diagonal per-step offset transition a (a Gauss-Markov offset; a = 1 here)
  * fits the same accumulators: F = [I Gp; 0 diag(a)], the core block and A
  * propagate with it, and Y <- (F (I + [0 Y])) - I in its offset columns, i.e.
  * Y_pose += Gp (I + Y_offset) and Y_offset <- diag(a) (I + Y_offset) - I;
@@ -125,8 +125,8 @@ void vl_predict_settle(vl_estimator_t *e)
         return;
     }
     const uint32_t n = vl_state_dim(e);
-    const int moving =
-        e->cfg.mode != VL_MODE_MAPPING; /* mapping takes the trajectory as known: B's landmark rows are 0 */
+    /* Mapping takes the trajectory as known: B's landmark rows are zero. */
+    const int moving = e->cfg.mode != VL_MODE_MAPPING;
     vl_la_settle(e->P, VL_LD, (int)n, &e->deferred, moving ? e->landmark_state : NULL, e->work_PHt);
     vl_work_settle(e, n, moving);
     e->deferred.steps = 0;
