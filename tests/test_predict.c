@@ -5,13 +5,17 @@
  * core block is current after every step.
  */
 #include <math.h>
+#include <signal.h>
 #include <string.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include "unity.h"
 #include "vl_estimator_internal.h"
 #include "vl_predict.h"
 #include "vl_se3.h"
 #include "vl_test_util.h"
+#include "vl_window.h"
 #include "vislam/vislam.h"
 
 #define LANDMARKS 6
@@ -284,6 +288,33 @@ void test_samples_defer_and_a_frame_settles(void)
     TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
 }
 
+/*
+ * A reader of P beyond the core block with steps pending (here marginalization,
+ * called without the entry point that settles first) stops at vl_P's assert in
+ * the checked core the tests link.
+ */
+void test_a_stale_read_stops_at_the_assert(void)
+{
+    static double Pref[N * N];
+    random_state(VL_MODE_SLAM, 1, Pref);
+    const double Gp[36] = {0.1}, q[6] = {0.01, 0.01, 0.01, 0.01, 0.01, 0.01};
+    vl_predict_defer(&est, Gp, q, NULL);
+    fflush(stdout);
+    const pid_t child = fork();
+    TEST_ASSERT_TRUE(child >= 0);
+    if (child == 0) {
+        (void)freopen("/dev/null", "w", stderr); /* the assert's message */
+        vl_window_marginalize(&est, 0);
+        _exit(0);
+    }
+    int status = 0;
+    TEST_ASSERT_EQUAL_INT(child, waitpid(child, &status, 0));
+    TEST_ASSERT_TRUE_MESSAGE(WIFSIGNALED(status) && WTERMSIG(status) == SIGABRT, "a stale read went unnoticed");
+    vl_predict_settle(&est);
+    vl_window_marginalize(&est, 0); /* settled: allowed */
+    TEST_ASSERT_EQUAL_UINT32(LANDMARKS - 1, vl_window_size(&est));
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -291,5 +322,6 @@ int main(void)
     RUN_TEST(test_slam_without_offsets);
     RUN_TEST(test_mapping_with_and_without_offsets);
     RUN_TEST(test_samples_defer_and_a_frame_settles);
+    RUN_TEST(test_a_stale_read_stops_at_the_assert);
     return UNITY_END();
 }
