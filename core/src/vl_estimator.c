@@ -7,8 +7,8 @@
  *
  * An IMU sample: checks, prediction to its time (P's core block only: the rest
  * waits, vl_predict.c), then it is held. A frame: checks, prediction to its
- * time and the waiting prediction applied to all of P, its observations sorted into update rows and
- * admission candidates, the rows fused (gate, re-association, RANSAC, the joint
+ * time and the waiting prediction applied to all of P, its observations sorted
+ * into update rows and admission candidates, the rows fused (gate, re-association, RANSAC, the joint
  * update, noise adaptation, rescue), ended and broken tracks retired to the map,
  * the candidates admitted. After every used input, the divergence guard.
  *

@@ -133,8 +133,9 @@ int vl_guard_frame_repeats_previous(const vl_estimator_t *e, const vl_stereo_fra
 
 /*
  * A non-finite state, a covariance with a negative or non-finite diagonal (or
- * non-finite deferred prediction accumulators) or a core block violating |P_ij| <= sqrt(P_ii P_jj) (a necessary condition of
- * positive semi-definiteness, cheap enough for every step), or, in SLAM,
+ * non-finite deferred prediction accumulators) or a core block violating
+ * |P_ij| <= sqrt(P_ii P_jj) (a necessary condition of positive
+ * semi-definiteness, cheap enough for every step), or, in SLAM,
  * divergence_frames failed updates in a row.
  */
 int vl_guard_diverged(const vl_estimator_t *e)

@@ -78,7 +78,7 @@ void vl_work_settle(vl_estimator_t *e, uint32_t n_states, int moving)
         return; /* the core block is current already */
     }
     const uint64_t landmarks = nl / 3u;
-    const uint64_t core = 2u * 12u * 6u * 6u + 2u * 12u * 6u * 12u + 300u;
+    const uint64_t core = 2u * VL_CORE_DIM * 6u * 6u + 2u * VL_CORE_DIM * 6u * VL_CORE_DIM + 300u;
     const uint64_t per_landmark = 2u * (3u * 3u * 6u + 3u * 6u * 6u + 3u * 6u * 12u + 2u * 3u * 3u * 12u) + 100u;
     const uint64_t block = moving ? 6u * nl * (nl + 1u) : 0u;
     add(e, &e->work.predict, core + landmarks * per_landmark + block);
