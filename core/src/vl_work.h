@@ -21,6 +21,9 @@ void vl_work_begin(vl_estimator_t *e);
 /** A prediction of an n-state joint covariance (three rank-6 updates with offset states, else one). */
 void vl_work_predict(vl_estimator_t *e, uint32_t n, int with_offsets);
 
+/** The process noise of a repeated image shared by the carried landmarks (counted as prediction). */
+void vl_work_repeat_noise(vl_estimator_t *e, uint32_t carried);
+
 /** The innovation gate of k observations. */
 void vl_work_gate(vl_estimator_t *e, uint32_t k);
 
