@@ -110,6 +110,9 @@ uint32_t vl_window_repeat_noise(vl_estimator_t *e, const vl_stereo_frame_t *fram
             carried[n++] = (uint32_t)slot;
         }
     }
+    if (n == 0) {
+        return 0; /* also after a reset, which clears the window and the previous frame's pose */
+    }
     double dR[9], dphi[3];
     vl_matmul_bt(e->R, e->frame_R, dR, 3, 3, 3);
     vl_so3_log(dR, dphi);
