@@ -9,6 +9,7 @@
 #include "vl_linalg.h"
 #include "vl_se3.h"
 #include "vl_stereo.h"
+#include "vl_window.h"
 #include "vl_work.h"
 
 static vl_estimator_t est;
@@ -205,6 +206,133 @@ void test_update_counts_a_repeated_image_and_nothing_else(void)
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
     TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->frames_repeated);
     TEST_ASSERT_EQUAL_UINT64(4, vl_get_counters(&est)->frames_accepted);
+}
+
+/* A window of 6 landmarks (ids 0..5): the same frame twice admits its tracks. */
+static void window_of_six(vl_config_t *cfg, vl_stereo_frame_t *frame)
+{
+    kitti_config(cfg);
+    start_at(cfg, 1000000);
+    make_frame(cfg, frame, 1100000, 6, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, frame));
+    frame->utime = 1200000;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, frame));
+    TEST_ASSERT_EQUAL_UINT32(6, vl_window_size(&est));
+}
+
+/*
+ * The repeated image's noise: one rigid motion about the vehicle, rho and phi isotropic
+ * with s^2 times the step's squared translation and angle, shared by the landmarks the
+ * frame observes: Q_ab = G_a Sigma G_b^T with G_a = [I, -hat(l_a - p)], on their blocks
+ * of P and nowhere else.
+ */
+void test_repeat_noise_moves_the_observed_landmarks_together_and_nothing_else(void)
+{
+    static vl_stereo_frame_t frame;
+    static double before[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX];
+    vl_config_t cfg;
+    window_of_six(&cfg, &frame);
+    const double s = 0.5, step[3] = {1.0, 0.2, 0.0}, phi[3] = {0.0, 0.01, 0.03};
+    est.cfg.repeat_anchor_noise = s;
+    double dR[9];
+    vl_so3_exp(phi, dR);
+    vl_matmul_at(dR, est.R, est.frame_R, 3, 3, 3); /* frame_R = dR^T R: the step R frame_R^T is dR */
+    for (int i = 0; i < 3; ++i) {
+        est.frame_p[i] = est.p[i] - step[i];
+    }
+    const uint32_t n = vl_state_dim(&est);
+    memcpy(before, est.P, sizeof(before));
+    frame.count = 4; /* ids 0, 2, 4 and one outside the window */
+    frame.obs[1] = frame.obs[2];
+    frame.obs[2] = frame.obs[4];
+    frame.obs[3].id = 99;
+    TEST_ASSERT_EQUAL_UINT32(3, vl_window_repeat_noise(&est, &frame, frame.count));
+
+    const double qt = s * s * (step[0] * step[0] + step[1] * step[1]);
+    const double qr = s * s * (phi[1] * phi[1] + phi[2] * phi[2]);
+    const double Sigma[36] = {qt, 0, 0, 0,  0, 0, 0, qt, 0, 0, 0,  0, 0, 0, qt, 0, 0, 0,
+                              0,  0, 0, qr, 0, 0, 0, 0,  0, 0, qr, 0, 0, 0, 0,  0, 0, qr};
+    double G[6][18]; /* G of each slot, 3x6 row-major */
+    int carried[6] = {0};
+    for (uint32_t slot = 0; slot < 6; ++slot) {
+        const double *l = &est.landmark_state[3 * slot];
+        const double a[3] = {l[0] - est.p[0], l[1] - est.p[1], l[2] - est.p[2]};
+        double S[9];
+        vl_skew(a, S);
+        memset(G[slot], 0, sizeof(G[slot]));
+        for (int r = 0; r < 3; ++r) {
+            G[slot][6 * r + r] = 1.0;
+            for (int c = 0; c < 3; ++c) {
+                G[slot][6 * r + 3 + c] = -S[3 * r + c];
+            }
+        }
+        carried[slot] = est.slots[slot].id % 2 == 0 && est.slots[slot].id <= 4;
+    }
+    double largest = 0.0;
+    for (uint32_t col = 0; col < n; ++col) {
+        for (uint32_t row = 0; row < n; ++row) {
+            const double added =
+                est.P[(size_t)col * VL_STATE_DIM_MAX + row] - before[(size_t)col * VL_STATE_DIM_MAX + row];
+            double expected = 0.0;
+            if (row >= VL_CORE_DIM && col >= VL_CORE_DIM) {
+                const uint32_t a = (row - VL_CORE_DIM) / 3u, b = (col - VL_CORE_DIM) / 3u;
+                if (carried[a] && carried[b]) {
+                    double GS[18], Q[9];
+                    vl_matmul(G[a], Sigma, GS, 3, 6, 6);
+                    vl_matmul_bt(GS, G[b], Q, 3, 6, 3);
+                    expected = Q[3 * ((row - VL_CORE_DIM) % 3u) + (col - VL_CORE_DIM) % 3u];
+                }
+            }
+            if (expected == 0.0) {
+                TEST_ASSERT_EQUAL_DOUBLE(0.0, added); /* bit-identical elsewhere */
+            } else {
+                TEST_ASSERT_DOUBLE_WITHIN(1e-12 * (1.0 + fabs(expected)), expected, added);
+                largest = fmax(largest, fabs(expected));
+            }
+        }
+    }
+    /* a step of a metre, at s = 0.5: a quarter of a square metre along the step, and more off it */
+    TEST_ASSERT_TRUE(largest > 0.25 * (step[0] * step[0] + step[1] * step[1]));
+}
+
+/* Off or on, the filter is the same except at repeated images. */
+void test_repeat_noise_acts_at_repeated_images_only(void)
+{
+    static vl_stereo_frame_t frame;
+    static vl_estimator_t off;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    TEST_ASSERT_TRUE(cfg.repeat_anchor_noise > 0.0); /* on by default */
+    vl_config_t on_cfg = cfg;
+    cfg.repeat_anchor_noise = 0.0;
+    const vl_imu_sample_t first = start_at(&on_cfg, 1000000);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&off, &cfg));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&off, &first));
+    for (int k = 1; k <= 5; ++k) {
+        const int64_t t = 1000000 + 100000 * (int64_t)k;
+        const vl_imu_sample_t imu = vl_test_imu_at(t, 2.0, 0.05);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &imu));
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&off, &imu));
+        if (k != 5) { /* frame 5 repeats frame 4 */
+            make_frame(&cfg, &frame, t, 8, 0);
+            for (uint32_t i = 0; i < frame.count; ++i) {
+                frame.obs[i].u_left -= 0.5 * k;
+                frame.obs[i].u_right -= 0.5 * k;
+            }
+        }
+        frame.utime = t;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&off, &frame));
+        const uint32_t n = vl_state_dim(&est);
+        int same = n == vl_state_dim(&off) && memcmp(est.p, off.p, sizeof(est.p)) == 0;
+        for (uint32_t col = 0; col < n && same; ++col) { /* the state's columns: the rest of P is scratch */
+            same = memcmp(&est.P[(size_t)col * VL_STATE_DIM_MAX], &off.P[(size_t)col * VL_STATE_DIM_MAX],
+                          n * sizeof(double)) == 0;
+        }
+        TEST_ASSERT_EQUAL_INT(k != 5, same);
+    }
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->frames_repeated);
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&off)->frames_repeated);
 }
 
 /* ------------------------------------------------------------ prediction */
@@ -802,6 +930,8 @@ int main(void)
     RUN_TEST(test_rotated_deferrals_reach_every_landmark_in_turn);
     RUN_TEST(test_admissions_per_frame_are_bounded_and_the_rest_wait);
     RUN_TEST(test_update_counts_a_repeated_image_and_nothing_else);
+    RUN_TEST(test_repeat_noise_moves_the_observed_landmarks_together_and_nothing_else);
+    RUN_TEST(test_repeat_noise_acts_at_repeated_images_only);
     RUN_TEST(test_sparse_frame_without_consensus_keeps_the_gate_verdict);
     return UNITY_END();
 }

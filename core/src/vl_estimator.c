@@ -360,9 +360,11 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     /* Counted, and still used: after a repeated image the tracker's frames stay one
      * step behind the clock, so the repeat keeps the vision's timeline coherent
      * (skipping repeats measured worse on every density of the real drives). */
-    if (vl_guard_frame_repeats_previous(e, frame, count)) {
+    const int repeated = vl_guard_frame_repeats_previous(e, frame, count);
+    if (repeated) {
         e->counters.frames_repeated++;
     }
+    const int had_frame = e->have_frame;
     e->num_prev_obs = count;
     memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
 
@@ -383,6 +385,9 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     e->num_broken = 0;
     vl_candidates_t candidates;
     candidates.count = 0;
+    if (repeated && had_frame && e->cfg.repeat_anchor_noise > 0.0) {
+        vl_work_repeat_noise(e, vl_window_repeat_noise(e, frame, count));
+    }
     const uint32_t k = vl_window_classify(e, frame, count, frame_dt, &candidates);
 
     /* 3. Outlier rejection and the joint update. */
@@ -407,6 +412,8 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     vl_window_retire(e);
     /* 5. Admissions, best first, including the restarts of broken tracks. */
     vl_window_admit(e, frame, &candidates);
+    memcpy(e->frame_R, e->R, sizeof(e->R));
+    memcpy(e->frame_p, e->p, sizeof(e->p));
     vl_work_window(e, vl_state_dim(e), count, (uint32_t)(e->counters.landmarks_marginalized - marginalized_before),
                    (uint32_t)(e->counters.landmarks_initialized - admitted_before));
     return guard_divergence(e, VL_INPUT_FRAME, frame->utime, result);

@@ -81,6 +81,64 @@ void vl_window_marginalize(vl_estimator_t *e, uint32_t slot)
 }
 
 /*
+ * The tracker's detection frame repeats the previous image, and every track it
+ * carries resumes at the pixels its point had one step earlier in the camera: to
+ * the filter, the carried points move together by the vehicle's step (on 0027 the
+ * carried tracks then fit their points displaced that way as well as other tracks
+ * fit theirs). Each carried landmark gets the noise of one rigid motion shared by
+ * all of them, about the vehicle: delta l_a = rho + phi x a, a = l_a - p, with
+ * rho ~ N(0, s^2 |dp|^2 I) and phi ~ N(0, s^2 |dphi|^2 I), (dp, dphi) the step
+ * from the previous frame's pose. Hence, with hat(a) hat(b)^T = (a.b) I - b a^T,
+ *     Q_ab = s^2 ((|dp|^2 + |dphi|^2 a.b) I - |dphi|^2 b a^T).
+ * Shared, not independent per landmark: the tracks all show the same step, and
+ * independent noise leaves the pose to explain what they have in common
+ * (measured worse than none). A landmark's error in invariant coordinates is its
+ * world error plus terms of the pose's, so Q adds to the landmark blocks alone.
+ */
+uint32_t vl_window_repeat_noise(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count)
+{
+    uint32_t carried[VL_MAX_LANDMARKS];
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < count && n < e->num_landmarks; ++i) {
+        const int slot = find_slot(e, frame->obs[i].id);
+        if (slot >= 0) {
+            carried[n++] = (uint32_t)slot;
+        }
+    }
+    if (n == 0) {
+        return 0; /* also after a reset, which clears the window and the previous frame's pose */
+    }
+    double dR[9], dphi[3];
+    vl_matmul_bt(e->R, e->frame_R, dR, 3, 3, 3);
+    vl_so3_log(dR, dphi);
+    const double dp[3] = {e->p[0] - e->frame_p[0], e->p[1] - e->frame_p[1], e->p[2] - e->frame_p[2]};
+    const double s2 = e->cfg.repeat_anchor_noise * e->cfg.repeat_anchor_noise;
+    const double qt = s2 * (dp[0] * dp[0] + dp[1] * dp[1] + dp[2] * dp[2]);
+    const double qr = s2 * (dphi[0] * dphi[0] + dphi[1] * dphi[1] + dphi[2] * dphi[2]);
+    for (uint32_t i = 0; i < n; ++i) {
+        const double *la = vl_landmark_point(e, carried[i]);
+        const double a[3] = {la[0] - e->p[0], la[1] - e->p[1], la[2] - e->p[2]};
+        const uint32_t ca = vl_landmark_col(carried[i]);
+        for (uint32_t j = 0; j <= i; ++j) {
+            const double *lb = vl_landmark_point(e, carried[j]);
+            const double b[3] = {lb[0] - e->p[0], lb[1] - e->p[1], lb[2] - e->p[2]};
+            const uint32_t cb = vl_landmark_col(carried[j]);
+            const double diag = qt + qr * (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]);
+            for (uint32_t r = 0; r < 3; ++r) {
+                for (uint32_t c = 0; c < 3; ++c) {
+                    const double q = (r == c ? diag : 0.0) - qr * b[r] * a[c]; /* Q_ab(r, c) */
+                    *vl_P_at(e, ca + r, cb + c) += q;
+                    if (j != i) {
+                        *vl_P_at(e, cb + c, ca + r) += q;
+                    }
+                }
+            }
+        }
+    }
+    return n;
+}
+
+/*
  * Admits a landmark from one stereo observation y (compressed): l = R b + p with
  * b the triangulated point in the IMU frame. In invariant coordinates its error is
  * rho (the pose's) plus the pixel part, so it gets the exact first-order

@@ -50,4 +50,14 @@ void vl_window_landmark(const vl_estimator_t *e, uint32_t slot, vl_landmark_t *o
 /** Hands a landmark to the map sink and drops its rows and columns (exact marginal). */
 void vl_window_marginalize(vl_estimator_t *e, uint32_t slot);
 
+/**
+ * At a repeated image: the process noise of the tracker re-anchoring the tracks the
+ * frame carries, one rigid motion of repeat_anchor_noise times the step from the
+ * previous frame's pose (frame_R, frame_p) shared by every window landmark the
+ * frame observes, added to their blocks of P (the pose and offset blocks and their
+ * cross-covariances unchanged). Returns how many landmarks it moved (work:
+ * O(carried^2), no allocation).
+ */
+uint32_t vl_window_repeat_noise(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count);
+
 #endif /* VISLAM_VL_WINDOW_H */

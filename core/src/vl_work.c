@@ -17,6 +17,10 @@
 #define VL_WORK_RESIDUAL (2u * 3u * 9u + 6u)
 /* The pose part of a prediction or a correction: SE(3) exponential, Jacobians, 6x6 products. */
 #define VL_WORK_POSE 1000u
+/* The step's log (an SO(3) logarithm and a 3x3 product). */
+#define VL_WORK_STEP 100u
+/* One 3x3 block of a repeated image's shared landmark noise and its mirror: a dot product, 9 entries. */
+#define VL_WORK_REPEAT_PAIR 50u
 /* Moving one landmark by a correction: two 3x3 products and a sum. */
 #define VL_WORK_LANDMARK_CORRECTION 39u
 
@@ -82,6 +86,12 @@ void vl_work_settle(vl_estimator_t *e, uint32_t n_states, int moving)
     const uint64_t per_landmark = 2u * (3u * 3u * 6u + 3u * 6u * 6u + 3u * 6u * 12u + 2u * 3u * 3u * 12u) + 100u;
     const uint64_t block = moving ? 6u * nl * (nl + 1u) : 0u;
     add(e, &e->work.predict, core + landmarks * per_landmark + block);
+}
+
+void vl_work_repeat_noise(vl_estimator_t *e, uint32_t carried)
+{
+    const uint64_t n = carried;
+    add(e, &e->work.predict, VL_WORK_STEP + VL_WORK_REPEAT_PAIR * n * (n + 1u) / 2u);
 }
 
 void vl_work_gate(vl_estimator_t *e, uint32_t k)

@@ -24,6 +24,9 @@ void vl_work_predict(vl_estimator_t *e, int with_offsets);
 /** The deferred prediction applied to an n-state P (moving: the landmark block changes, not mapping). */
 void vl_work_settle(vl_estimator_t *e, uint32_t n, int moving);
 
+/** The process noise of a repeated image shared by the carried landmarks (counted as prediction). */
+void vl_work_repeat_noise(vl_estimator_t *e, uint32_t carried);
+
 /** The innovation gate of k observations. */
 void vl_work_gate(vl_estimator_t *e, uint32_t k);
 

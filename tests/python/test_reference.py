@@ -92,6 +92,24 @@ def test_reference_agrees_with_rotated_deferrals(build_dir, tmp_path):
     assert rc == 1
 
 
+def test_reference_agrees_with_repeat_anchor_noise(build_dir, tmp_path):
+    """A realistic simulated drive with stale (repeated) frames, the repeated images' landmark noise
+    on: the reference adds the same noise (it agrees), and the noise matters (without it in the
+    reference alone the poses move)."""
+    log = tmp_path / "stale.lcmlog"
+    subprocess.run([str(build_dir / "bin" / "vislam-sim"), "--realistic", "--steps", "40", "--stale-probability",
+                    "0.2", "--out", str(log), "--truth", str(tmp_path / "truth.tum")], check=True, capture_output=True)
+    ini = tmp_path / "anchor.ini"
+    ini.write_text("[noise]\nrepeat_anchor_noise = 0.5\n")
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), log=log)
+    assert fig["agreement"]["frames_compared"] == 40
+    assert fig["agreement"]["position_max_m"] < TOLERANCE
+    assert rc == 0
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--set", "repeat_anchor_noise=0", log=log)
+    assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
+    assert rc == 1
+
+
 def test_sample_velocity_weights():
     from reference.vl_reference import sample_velocity
     held, new = np.array([0.0, 2.0]), np.array([1.0, 4.0])

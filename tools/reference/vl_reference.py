@@ -377,6 +377,8 @@ class Filter:
         self.frame_index = 0
         self.reassociated_run = 0
         self.failed_frame_run = 0
+        self.prev_frame = np.zeros((0, 5))                 # the previous frame's observations
+        self.frame_R, self.frame_p = np.eye(3), np.zeros(3)  # the pose after the previous frame
         self.broken_obs = []
         self.counters = {"frames": 0, "updates_refused": 0, "observations_used": 0,
                          "frames_reassociated": 0, "landmarks_initialized": 0}
@@ -495,6 +497,9 @@ class Filter:
         self._check_silence(utime)
         if len(frame) > MAX_FRAME_FEATURES:
             raise ReferenceError("frame over VL_MAX_FRAME_FEATURES: not modelled")
+        repeated = self.repeats_previous(frame)
+        had_frame = self.last_frame_utime is not None
+        self.prev_frame = frame
         self.predict_to(utime)
         frame_dt = (utime - self.last_frame_utime) * 1e-6 if self.last_frame_utime is not None else 0.0
         self.last_frame_utime = utime
@@ -502,6 +507,8 @@ class Filter:
         self.counters["frames"] += 1
         if self.cfg["mode"] == "imu_only":
             return True
+        if repeated and had_frame and self.cfg["repeat_anchor_noise"] > 0.0:
+            self.repeat_noise(frame)
         for s in self.slots:
             s.seen = SEEN_NONE
         self.broken_obs = []
@@ -519,7 +526,45 @@ class Filter:
             raise ReferenceError("divergence reset: not modelled")
         self.retire()
         self.admit(frame, candidates)
+        self.frame_R, self.frame_p = self.R.copy(), self.p.copy()
         return ok
+
+    def repeats_previous(self, frame):
+        """The frame repeats the previous one's pixels exactly on every id the two share (at least one)."""
+        common = 0
+        for o in frame:
+            for q in self.prev_frame:
+                if q[0] == o[0]:
+                    if np.any(q[1:] != o[1:]):
+                        return False
+                    common += 1
+                    break
+        return common > 0
+
+    def repeat_noise(self, frame):
+        """The tracker re-anchors the tracks a repeated image carries: the landmarks it observes
+        move together by one rigid motion about the vehicle, delta l_a = rho + phi x (l_a - p), with
+        rho and phi isotropic of s^2 times the squared step (dp, dphi) from the previous frame's pose
+        (s = repeat_anchor_noise); added to the landmark blocks of P: Q_ab = G_a Sigma G_b^T."""
+        carried = []
+        for o in frame:
+            if len(carried) >= len(self.slots):
+                break
+            for s, slot in enumerate(self.slots):
+                if slot.id == int(o[0]):
+                    carried.append(s)
+                    break
+        dR = self.R @ self.frame_R.T
+        w = 0.5 * np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
+        angle = math.atan2(math.sqrt(w @ w), min(1.0, max(-1.0, 0.5 * (np.trace(dR) - 1.0))))
+        dp = self.p - self.frame_p
+        s2 = self.cfg["repeat_anchor_noise"] ** 2
+        Sigma = np.diag([s2 * (dp @ dp)] * 3 + [s2 * angle * angle] * 3)
+        G = np.zeros((self.n, 6))
+        for s in carried:
+            c = CORE_DIM + 3 * s
+            G[c:c + 3] += np.hstack([np.eye(3), -hat3(self.L[s] - self.p)])
+        self.P = self.P + G @ Sigma @ G.T
 
     def _plausible(self, o):
         """The image (2 cx by 2 cy unless configured) widened by image_margin, and max_disparity."""

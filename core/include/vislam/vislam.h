@@ -399,6 +399,10 @@ typedef struct {
     double pixel_var;            /**< px^2 */
     uint32_t reassociated_run;   /**< consecutive frames distrusted as re-associations */
 
+    /** The pose after the previous accepted frame: the step to a repeated image (repeat_anchor_noise). */
+    double frame_R[9]; /**< world-from-IMU rotation, row-major */
+    double frame_p[3]; /**< m */
+
     /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
     uint32_t num_prev_obs;
     vl_stereo_obs_t prev_obs[VL_MAX_FRAME_FEATURES];
