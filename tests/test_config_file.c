@@ -495,8 +495,8 @@ void test_vl_config_default_equals_documented_values(void)
     TEST_ASSERT_EQUAL_INT(1, cfg.interpolate_velocities);
     TEST_ASSERT_EQUAL_DOUBLE(0.5, cfg.max_propagation_dt);
     TEST_ASSERT_EQUAL_UINT32(64, cfg.max_update_observations);
-    TEST_ASSERT_EQUAL_DOUBLE(40.0, cfg.max_update_work);
-    TEST_ASSERT_EQUAL_INT(0, cfg.rotate_deferred);
+    TEST_ASSERT_EQUAL_DOUBLE(18.5, cfg.max_update_work);
+    TEST_ASSERT_EQUAL_INT(1, cfg.rotate_deferred);
     TEST_ASSERT_EQUAL_DOUBLE(0.5, cfg.linear_velocity_noise);
     TEST_ASSERT_EQUAL_DOUBLE(0.05, cfg.angular_velocity_noise);
     TEST_ASSERT_EQUAL_DOUBLE(0.1, cfg.linear_offset_prior);

@@ -272,6 +272,11 @@ void test_adaptive_noise_moves_wrong_settings_toward_the_truth(void)
         cfg.linear_velocity_noise = sc.linear_noise * factors[f];
         cfg.angular_velocity_noise = sc.angular_noise * factors[f];
         cfg.pixel_noise = sc.pixel_noise * factors[f];
+        /* The adaptation's steps are weighted by what each frame tells about the pose; the
+         * default work bound uses about a third of this drive's 96 observations per frame,
+         * so its pace is asserted below, and the rule's own reach here with every row. */
+        cfg.max_update_work = 0.0;
+        cfg.max_update_observations = 0;
         adapted_noise(&sc, &cfg, &pose);
         printf("configured x%.1f: adapted linear %.3f (true %.3f) m/s, angular %.4f (true %.4f) rad/s, "
                "pixel %.3f (true %.3f) px\n",
@@ -290,6 +295,16 @@ void test_adaptive_noise_moves_wrong_settings_toward_the_truth(void)
             }
         }
     }
+    /* At the default work bound, from 10x too large: the angular and pixel noise still
+     * close at least a quarter of the distance within the drive (README, Bounded work per step). */
+    scenario(21, 300, 1.0, &sc, &cfg);
+    cfg.angular_velocity_noise = sc.angular_noise * 10.0;
+    cfg.pixel_noise = sc.pixel_noise * 10.0;
+    adapted_noise(&sc, &cfg, &pose);
+    printf("default work bound, configured x10: adapted angular %.4f rad/s, pixel %.3f px\n",
+           pose.angular_velocity_noise, pose.pixel_noise);
+    TEST_ASSERT_TRUE(log(pose.angular_velocity_noise / sc.angular_noise) < 0.75 * log(10.0));
+    TEST_ASSERT_TRUE(log(pose.pixel_noise / sc.pixel_noise) < 0.75 * log(10.0));
     /* off: the configured values stay */
     scenario(21, 100, 1.0, &sc, &cfg);
     cfg.adaptive_noise = 0;

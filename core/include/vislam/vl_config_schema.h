@@ -82,17 +82,17 @@ typedef enum {
       "Most observations one update uses (0: all). A time bound: the update costs about " \
       "(12 + 3 landmarks)^2 x 3 observations; the inliers left out (evenly spread) stay in the " \
       "window for later frames.") \
-    /* 40 Mflop: the costliest update of 0034 down 16%, 0027 within 0.05 m (README, Bounded work \
-       per step); the pixel noise adaptation leaves the deferred rows out. */ \
-    X("estimator", "max_update_work", max_update_work, DOUBLE, 40.0, 0.0, DBL_MAX, 0, "Mflop", \
+    /* 18.5 Mflop with rotate_deferred: the costliest step of 0034 at 1.96x the median step's \
+       work, 0027 within 0.05 m (from the start and over 8 starts; README, Bounded work per step). */ \
+    X("estimator", "max_update_work", max_update_work, DOUBLE, 18.5, 0.0, DBL_MAX, 0, "Mflop", \
       "Most arithmetic one frame's joint updates may do, in millions of floating-point " \
       "operations (0: no bound). The update with n states and m rows costs about " \
       "n^2 m + n m^2 + m^3 / 3 flops, so the bound admits fewer observations the larger the " \
       "window: a flat worst case. At least one observation is always used; the inliers left " \
       "out (evenly spread) stay in the window for later frames.") \
-    /* Off: level with the even spread at 40 Mflop; 0.10 to 0.26 m better on 0027 (8 starts) at \
-       18 to 22 Mflop, where the budget still costs more than 0.05 m (README, Bounded work per step). */ \
-    X("estimator", "rotate_deferred", rotate_deferred, BOOL, 0, 0, 1, 0, "", \
+    /* On: at budgets of 22 Mflop and below the even spread leaves some landmarks never updated \
+       (README, Bounded work per step). */ \
+    X("estimator", "rotate_deferred", rotate_deferred, BOOL, 1, 0, 1, 0, "", \
       "When a time bound leaves observations out, keep those of the landmarks the updates have " \
       "used least (then longest ago) instead of an evenly spread subset, so that the landmarks " \
       "deferred in one frame go first in the next.") \
