@@ -5,6 +5,7 @@
 #include <arpa/inet.h>
 #include <errno.h>
 #include <netinet/in.h>
+#include <poll.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -75,9 +76,7 @@ static long recv_buf_size(const char *opts)
 
 int vl_lcm_rx_open(vl_lcm_rx_t *rx, const char *url, lcm_t *lcm, char *err, size_t err_len)
 {
-    memset(rx, 0, offsetof(vl_lcm_rx_t, packet));
-    rx->fd = -1;
-    rx->lcm = lcm;
+    vl_lcm_rx_use_lcm(rx, lcm);
     if (url == NULL) {
         url = getenv("LCM_DEFAULT_URL");
     }
@@ -86,7 +85,7 @@ int vl_lcm_rx_open(vl_lcm_rx_t *rx, const char *url, lcm_t *lcm, char *err, size
     }
     const char *sep = strstr(url, "://");
     if (sep == NULL || (size_t)(sep - url) != 4 || strncmp(url, "udpm", 4) != 0) {
-        return 1;
+        return 1; /* through liblcm */
     }
     const char *network = sep + 3;
     const char *q = strchr(network, '?');
@@ -132,7 +131,16 @@ int vl_lcm_rx_open(vl_lcm_rx_t *rx, const char *url, lcm_t *lcm, char *err, size
         return -1;
     }
     rx->fd = fd;
+    rx->via_lcm = 0;
     return 0;
+}
+
+void vl_lcm_rx_use_lcm(vl_lcm_rx_t *rx, lcm_t *lcm)
+{
+    memset(rx, 0, offsetof(vl_lcm_rx_t, packet));
+    rx->fd = -1;
+    rx->lcm = lcm;
+    rx->via_lcm = 1;
 }
 
 int vl_lcm_rx_subscribe(vl_lcm_rx_t *rx, const char *channel, lcm_msg_handler_t handler, void *user)
@@ -140,10 +148,15 @@ int vl_lcm_rx_subscribe(vl_lcm_rx_t *rx, const char *channel, lcm_msg_handler_t 
     if (rx->num_subs >= VL_LCM_RX_MAX_SUBSCRIPTIONS || strlen(channel) >= VL_LCM_RX_CHANNEL_MAX || handler == NULL) {
         return -1;
     }
-    vl_lcm_rx_subscription_t *s = &rx->subs[rx->num_subs++];
+    vl_lcm_rx_subscription_t *s = &rx->subs[rx->num_subs];
     snprintf(s->channel, sizeof(s->channel), "%s", channel);
     s->handler = handler;
     s->user = user;
+    s->lcm_sub = NULL;
+    if (rx->via_lcm && (rx->lcm == NULL || (s->lcm_sub = lcm_subscribe(rx->lcm, channel, handler, user)) == NULL)) {
+        return -1;
+    }
+    rx->num_subs++;
     return 0;
 }
 
@@ -152,6 +165,9 @@ int vl_lcm_rx_unsubscribe(vl_lcm_rx_t *rx, const char *channel, lcm_msg_handler_
     int kept = 0, removed = 0;
     for (int i = 0; i < rx->num_subs; ++i) {
         if (rx->subs[i].handler == handler && strcmp(rx->subs[i].channel, channel) == 0) {
+            if (rx->subs[i].lcm_sub != NULL) {
+                lcm_unsubscribe(rx->lcm, rx->subs[i].lcm_sub);
+            }
             removed++;
         } else {
             rx->subs[kept++] = rx->subs[i];
@@ -163,7 +179,28 @@ int vl_lcm_rx_unsubscribe(vl_lcm_rx_t *rx, const char *channel, lcm_msg_handler_
 
 int vl_lcm_rx_fd(const vl_lcm_rx_t *rx)
 {
+    if (rx->via_lcm) {
+        return rx->lcm != NULL ? lcm_get_fileno(rx->lcm) : -1; /* also starts liblcm's receive side */
+    }
     return rx->fd;
+}
+
+/* Through liblcm: what its thread has queued (its pipe readable), up to max messages. */
+static int poll_lcm(vl_lcm_rx_t *rx, int max)
+{
+    const int fd = vl_lcm_rx_fd(rx);
+    int handled = 0;
+    for (int i = 0; i < max && fd >= 0; ++i) {
+        struct pollfd p = {fd, POLLIN, 0};
+        if (poll(&p, 1, 0) <= 0) {
+            break;
+        }
+        if (lcm_handle(rx->lcm) != 0) {
+            return -1;
+        }
+        handled++;
+    }
+    return fd >= 0 ? handled : -1;
 }
 
 static uint32_t be32(const uint8_t *p)
@@ -223,6 +260,9 @@ static int dispatch(vl_lcm_rx_t *rx, size_t n, int64_t utime)
 
 int vl_lcm_rx_poll(vl_lcm_rx_t *rx, int max)
 {
+    if (rx->via_lcm) {
+        return poll_lcm(rx, max);
+    }
     int handled = 0;
     for (int i = 0; i < max; ++i) {
         struct iovec iov = {rx->packet, VL_LCM_RX_PACKET_MAX};
@@ -258,4 +298,10 @@ void vl_lcm_rx_close(vl_lcm_rx_t *rx)
         close(rx->fd);
     }
     rx->fd = -1;
+    for (int i = 0; i < rx->num_subs; ++i) {
+        if (rx->subs[i].lcm_sub != NULL) {
+            lcm_unsubscribe(rx->lcm, rx->subs[i].lcm_sub);
+        }
+    }
+    rx->num_subs = 0;
 }

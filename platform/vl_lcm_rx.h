@@ -12,7 +12,8 @@
  * It speaks the receive half of LCM's UDP multicast wire format for messages that fit one
  * datagram (LCM's "short" messages, up to 65,499 bytes with the channel name): every message of
  * vislam's types. Fragmented messages are counted and dropped. Only udpm:// URLs: for any other
- * provider vl_lcm_rx_open says so and the caller subscribes through LCM as usual.
+ * provider (or by choice, vl_lcm_rx_use_lcm) the same receiver goes through liblcm's receive
+ * thread instead, so that a program subscribes, waits and handles one way whichever path is used.
  */
 #ifndef VISLAM_PLATFORM_VL_LCM_RX_H
 #define VISLAM_PLATFORM_VL_LCM_RX_H
@@ -35,12 +36,14 @@ typedef struct {
     char channel[VL_LCM_RX_CHANNEL_MAX];
     lcm_msg_handler_t handler;
     void *user;
+    lcm_subscription_t *lcm_sub; /**< through liblcm: its subscription; else NULL */
 } vl_lcm_rx_subscription_t;
 
 /** A receiver. Caller-owned (about 64 KiB: its packet buffer); no allocation after open. */
 typedef struct {
-    int fd;     /**< the multicast socket, -1 when closed */
-    lcm_t *lcm; /**< handed to handlers in lcm_recv_buf_t::lcm (may be NULL) */
+    int fd;      /**< the multicast socket, -1 when closed or through liblcm */
+    lcm_t *lcm;  /**< handed to handlers in lcm_recv_buf_t::lcm (may be NULL when direct) */
+    int via_lcm; /**< 1: subscriptions, the descriptor and polling go through liblcm's receive thread */
     vl_lcm_rx_subscription_t subs[VL_LCM_RX_MAX_SUBSCRIPTIONS];
     int num_subs;
     uint64_t messages;  /**< messages handed to a handler */
@@ -55,28 +58,37 @@ typedef struct {
  * and, for udpm://, opens the socket as liblcm does: bound to the port with SO_REUSEADDR (several
  * processes on one host share the group), the group joined, SO_RCVBUF from recv_buf_size if
  * given, kernel receive stamps on, non-blocking.
- * @param lcm the lcm_t the handlers are given (may be NULL)
- * @return 0 open; 1 not a udpm:// URL (nothing opened: subscribe through LCM); -1 an error, in err
+ * @param lcm the lcm_t the handlers are given (may be NULL); the one received through otherwise
+ * @return 0 open; 1 not a udpm:// URL (nothing opened: the receiver goes through @p lcm, as after
+ *         vl_lcm_rx_use_lcm); -1 an error, in err
  */
 int vl_lcm_rx_open(vl_lcm_rx_t *rx, const char *url, lcm_t *lcm, char *err, size_t err_len);
 
-/** Adds a handler for exactly @p channel; 0, or -1 when full or the name is too long. */
+/**
+ * Receives through liblcm (its thread, queue and pipe) instead of the socket: vl_lcm_rx_subscribe
+ * becomes lcm_subscribe, vl_lcm_rx_fd lcm_get_fileno and vl_lcm_rx_poll lcm_handle on what is
+ * queued. For any LCM provider.
+ */
+void vl_lcm_rx_use_lcm(vl_lcm_rx_t *rx, lcm_t *lcm);
+
+/** Adds a handler for exactly @p channel; 0, or -1 when full, the name is too long or LCM refuses. */
 int vl_lcm_rx_subscribe(vl_lcm_rx_t *rx, const char *channel, lcm_msg_handler_t handler, void *user);
 
 /** Removes the subscriptions of @p channel to @p handler; the number removed. */
 int vl_lcm_rx_unsubscribe(vl_lcm_rx_t *rx, const char *channel, lcm_msg_handler_t handler);
 
-/** The socket to wait on (poll/select readable), or -1. */
+/** The descriptor to wait on (poll/select readable): the socket, or liblcm's; -1 when none. */
 int vl_lcm_rx_fd(const vl_lcm_rx_t *rx);
 
 /**
  * Reads what the socket holds, without blocking, at most @p max datagrams, and calls the handler
  * of each message subscribed to (with recv_utime the kernel's receive time, CLOCK_REALTIME us).
+ * Through liblcm: handles up to @p max of the messages its thread has queued, without blocking.
  * @return the messages handed to handlers (0: none waiting), or -1 on a socket error (errno set)
  */
 int vl_lcm_rx_poll(vl_lcm_rx_t *rx, int max);
 
-/** Closes the socket (a closed or never opened receiver is fine). */
+/** Closes the socket, or unsubscribes from liblcm (a closed or never opened receiver is fine). */
 void vl_lcm_rx_close(vl_lcm_rx_t *rx);
 
 #ifdef __cplusplus

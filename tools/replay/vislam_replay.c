@@ -23,7 +23,6 @@
 #include <errno.h>
 #include <inttypes.h>
 #include <math.h>
-#include <poll.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -562,17 +561,7 @@ static void resend_calibration_if_asked(replay_t *r)
 /* Handles whatever has arrived, without blocking. */
 static void poll_incoming(replay_t *r)
 {
-    if (r->direct) {
-        vl_lcm_rx_poll(&r->rx, 10000);
-        return;
-    }
-    const int fd = lcm_get_fileno(r->lcm);
-    for (int i = 0; i < 10000; ++i) {
-        struct pollfd p = {fd, POLLIN, 0};
-        if (poll(&p, 1, 0) != 1 || !(p.revents & POLLIN) || lcm_handle(r->lcm) != 0) {
-            return;
-        }
-    }
+    vl_lcm_rx_poll(&r->rx, 10000);
 }
 
 /* Handles messages until *flag is set, the deadline passes or a stop is requested. */
@@ -586,30 +575,12 @@ static int wait_until_flag(replay_t *r, const int *flag, int64_t deadline_us)
         if (left <= 0) {
             break;
         }
-        if (now < spin_until) {
-            vl_lcm_rx_poll(&r->rx, 10000);
-            continue;
-        }
-        if (r->direct) {
-            if (vl_signal_wait_fd(vl_lcm_rx_fd(&r->rx), left > 100000 ? 100000 : left) > 0) {
-                vl_lcm_rx_poll(&r->rx, 10000);
-            }
-        } else {
-            const int ms = (int)((left + 999) / 1000);
-            lcm_handle_timeout(r->lcm, ms > 100 ? 100 : ms);
+        if (now < spin_until || vl_signal_wait_fd(vl_lcm_rx_fd(&r->rx), left > 100000 ? 100000 : left) > 0) {
+            poll_incoming(r);
         }
         resend_calibration_if_asked(r);
     }
     return *flag;
-}
-
-/* Subscribes handler to channel, directly or through liblcm; 0 or -1. */
-static int subscribe(replay_t *r, const char *channel, lcm_msg_handler_t handler)
-{
-    if (r->direct) {
-        return vl_lcm_rx_subscribe(&r->rx, channel, handler, r);
-    }
-    return lcm_subscribe(r->lcm, channel, handler, r) != NULL ? 0 : -1;
 }
 
 /* ---- progress and summary ---- */
@@ -756,7 +727,12 @@ int main(int argc, char **argv)
     }
     /* A udpm:// URL is read on its socket here (vl_lcm_rx), so a pose wakes this thread once. */
     char err[256];
-    const int rx = o->lcm_receive_thread ? 1 : vl_lcm_rx_open(&r->rx, o->lcm_url, r->lcm, err, sizeof(err));
+    int rx = 1;
+    if (o->lcm_receive_thread) {
+        vl_lcm_rx_use_lcm(&r->rx, r->lcm);
+    } else {
+        rx = vl_lcm_rx_open(&r->rx, o->lcm_url, r->lcm, err, sizeof(err));
+    }
     if (rx < 0) {
         fprintf(stderr, "vislam-replay: %s\n", err);
         lcm_destroy(r->lcm);
@@ -764,10 +740,8 @@ int main(int argc, char **argv)
         return EXIT_USAGE;
     }
     r->direct = rx == 0;
-    if (!r->direct) {
-        r->rx.fd = -1;
-    }
-    if (subscribe(r, o->pose_channel, on_pose) != 0 || subscribe(r, o->status_channel, on_status) != 0) {
+    if (vl_lcm_rx_subscribe(&r->rx, o->pose_channel, on_pose, r) != 0 ||
+        vl_lcm_rx_subscribe(&r->rx, o->status_channel, on_status, r) != 0) {
         fprintf(stderr, "vislam-replay: cannot subscribe to %s and %s\n", o->pose_channel, o->status_channel);
         lcm_destroy(r->lcm);
         lcm_eventlog_destroy(log);
@@ -776,7 +750,7 @@ int main(int argc, char **argv)
 
     int incomplete = 0;
     if (o->wait_for != NULL) {
-        if (subscribe(r, o->wait_for, on_wait_for) != 0) {
+        if (vl_lcm_rx_subscribe(&r->rx, o->wait_for, on_wait_for, r) != 0) {
             fprintf(stderr, "vislam-replay: cannot subscribe to %s\n", o->wait_for);
             lcm_destroy(r->lcm);
             lcm_eventlog_destroy(log);

@@ -686,32 +686,6 @@ static void on_own_status(const lcm_recv_buf_t *rbuf, const char *channel, void 
 }
 
 /*
- * LCM 1.3.1 allocates lazily: the main thread's first lcm_handle creates a GLib
- * mutex, and the first message on each channel makes the receive thread match
- * every subscription's regex (GLib/PCRE2) and cache the result. Publishing the
- * first status and handling it here moves the main thread's share into
- * start-up; the receive thread's per-channel cost stays, bounded by the number
- * of channel names on the network (see the README's measurement).
- */
-static void warm_up_lcm(daemon_t *d, int fd)
-{
-    int seen = 0;
-    lcm_subscription_t *sub = lcm_subscribe(d->lcm, d->channel[CH_STATUS], on_own_status, &seen);
-    publish_status(d);
-    const int64_t deadline = vl_clock_monotonic_us() + 200000;
-    while (!seen && sub != NULL) {
-        const int64_t left = deadline - vl_clock_monotonic_us();
-        if (left <= 0 || vl_signal_wait_fd(fd, left) <= 0) {
-            break; /* no loopback (or a signal): the first lcm_handle will allocate later */
-        }
-        lcm_handle(d->lcm);
-    }
-    if (sub != NULL) {
-        lcm_unsubscribe(d->lcm, sub);
-    }
-}
-
-/*
  * The inputs' subscriptions. A udpm:// URL is read directly (vl_lcm_rx: the estimation loop waits
  * on the multicast socket itself, one wake-up per message); any other provider, or
  * --lcm-receive-thread, through liblcm's receive thread. The descriptor to wait on, or -1.
@@ -719,30 +693,21 @@ static void warm_up_lcm(daemon_t *d, int fd)
 static int open_receive(daemon_t *d)
 {
     char err[256];
-    const int rc = d->opt.lcm_receive_thread ? 1 : vl_lcm_rx_open(&d->rx, d->opt.lcm_url, d->lcm, err, sizeof(err));
+    int rc = 1;
+    if (d->opt.lcm_receive_thread) {
+        vl_lcm_rx_use_lcm(&d->rx, d->lcm);
+    } else {
+        rc = vl_lcm_rx_open(&d->rx, d->opt.lcm_url, d->lcm, err, sizeof(err));
+    }
     if (rc < 0) {
         fprintf(stderr, "vislamd: %s\n", err);
         return -1;
     }
     d->direct = rc == 0;
-    if (!d->direct) {
-        d->rx.fd = -1;
-        if (d->opt.busy_poll_us > 0) {
-            fprintf(stderr, "vislamd: warning: --busy-poll-us needs the direct receiver (a udpm:// URL without "
-                            "--lcm-receive-thread); not polling\n");
-            d->opt.busy_poll_us = 0;
-        }
-        if (lcm_subscribe(d->lcm, d->channel[CH_CALIB], on_calibration_msg, d) == NULL ||
-            lcm_subscribe(d->lcm, d->channel[CH_IMU], on_imu_msg, d) == NULL ||
-            lcm_subscribe(d->lcm, d->channel[CH_FEATURES], on_features_msg, d) == NULL) {
-            fprintf(stderr, "vislamd: lcm_subscribe failed\n");
-            return -1;
-        }
-        const int fd = lcm_get_fileno(d->lcm); /* also starts LCM's receive side */
-        if (fd < 0) {
-            fprintf(stderr, "vislamd: LCM has no file descriptor to wait on\n");
-        }
-        return fd;
+    if (!d->direct && d->opt.busy_poll_us > 0) {
+        fprintf(stderr, "vislamd: warning: --busy-poll-us needs the direct receiver (a udpm:// URL without "
+                        "--lcm-receive-thread); not polling\n");
+        d->opt.busy_poll_us = 0;
     }
     if (vl_lcm_rx_subscribe(&d->rx, d->channel[CH_CALIB], on_calibration_msg, d) != 0 ||
         vl_lcm_rx_subscribe(&d->rx, d->channel[CH_IMU], on_imu_msg, d) != 0 ||
@@ -751,15 +716,16 @@ static int open_receive(daemon_t *d)
         vl_lcm_rx_close(&d->rx);
         return -1;
     }
-    return vl_lcm_rx_fd(&d->rx);
+    const int fd = vl_lcm_rx_fd(&d->rx);
+    if (fd < 0) {
+        fprintf(stderr, "vislamd: LCM has no file descriptor to wait on\n");
+    }
+    return fd;
 }
 
 /* What arrived, handled: 0, or -1 when the receive side failed. */
 static int receive(daemon_t *d)
 {
-    if (!d->direct) {
-        return lcm_handle(d->lcm) != 0 ? -1 : 0;
-    }
     return vl_lcm_rx_poll(&d->rx, RX_BATCH) < 0 ? -1 : 0;
 }
 
@@ -786,31 +752,40 @@ static int busy_poll(daemon_t *d, int64_t until_us)
 }
 
 /*
- * The direct receiver's start-up check, as liblcm's own self test: a message on LCM's self-test
- * channel, published and read back through the multicast loopback (up to 200 ms). It also makes
- * liblcm's lazy first-publish set-up happen before memory is locked. No answer is only a warning:
- * the inputs may still come from another host.
+ * The start-up check, as liblcm's own self test: a message of vislamd's own, published and read
+ * back through the multicast loopback (up to 200 ms). It also moves LCM's lazy set-up before
+ * memory is locked: the first publish and, through liblcm's receive thread, the main thread's
+ * first lcm_handle (a GLib mutex) and that thread's match of the channel against every
+ * subscription's regex (GLib/PCRE2), cached per channel name; what that thread allocates for
+ * other channel names stays (see the README's measurement). Read directly, the message goes on
+ * LCM's self-test channel and the first status only after mlockall; through liblcm's thread the
+ * message is that first status. No answer is only a warning: the inputs may come from another host.
  */
-static void self_test_direct(daemon_t *d)
+static void check_loopback(daemon_t *d)
 {
-    static const char channel[] = "LCM_SELF_TEST";
+    static const char self_test[] = "LCM_SELF_TEST";
     static const char text[] = "vislamd self test";
+    const char *channel = d->direct ? self_test : d->channel[CH_STATUS];
     int seen = 0;
-    if (vl_lcm_rx_subscribe(&d->rx, channel, on_own_status, &seen) != 0) {
-        return;
+    const int subscribed = vl_lcm_rx_subscribe(&d->rx, channel, on_own_status, &seen) == 0;
+    if (d->direct) {
+        lcm_publish(d->lcm, channel, text, (unsigned)sizeof(text));
+    } else {
+        publish_status(d); /* "I am up" */
     }
-    lcm_publish(d->lcm, channel, text, (unsigned)sizeof(text));
     const int64_t deadline = vl_clock_monotonic_us() + 200000;
-    while (!seen) {
+    while (subscribed && !seen) {
         const int64_t left = deadline - vl_clock_monotonic_us();
-        if (left <= 0 || vl_signal_wait_fd(d->rx.fd, left) <= 0) {
+        if (left <= 0 || vl_signal_wait_fd(vl_lcm_rx_fd(&d->rx), left) <= 0) {
             fprintf(stderr, "vislamd: warning: its own message did not come back through %s in 200 ms\n",
                     d->opt.lcm_url != NULL ? d->opt.lcm_url : "the default LCM url");
             break;
         }
         vl_lcm_rx_poll(&d->rx, RX_BATCH);
     }
-    vl_lcm_rx_unsubscribe(&d->rx, channel, on_own_status);
+    if (subscribed) {
+        vl_lcm_rx_unsubscribe(&d->rx, channel, on_own_status);
+    }
 }
 
 /* ---- start-up ---- */
@@ -1079,11 +1054,7 @@ int main(int argc, char **argv)
         lcm_destroy(d->lcm);
         return EXIT_RUNTIME;
     }
-    if (d->direct) {
-        self_test_direct(d);
-    } else {
-        warm_up_lcm(d, fd); /* also publishes the first status: "I am up" */
-    }
+    check_loopback(d);
 
     /* End of start-up: everything the loop uses is mapped; lock it. From here on the loop does
        not allocate (an LD_PRELOAD counter can take this mlockall as its mark: tests/support). */

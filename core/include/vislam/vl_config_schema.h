@@ -80,8 +80,8 @@ typedef enum {
        on 0034, for a few decimetres of ATE on 0027 (README). */ \
     X("estimator", "max_update_observations", max_update_observations, UINT32, 64, 0, UINT32_MAX, 0, "", \
       "Most observations one update uses (0: all). A time bound: the update costs about " \
-      "(12 + 3 landmarks)^2 x 3 observations; the inliers left out (evenly spread) stay in the " \
-      "window for later frames.") \
+      "(12 + 3 landmarks)^2 x 3 observations; the inliers left out (see rotate_deferred) stay in " \
+      "the window for later frames.") \
     /* 18.5 Mflop with rotate_deferred: the costliest step of 0034 at 1.96x the median step's \
        work, 0027 within 0.05 m (from the start and over 8 starts; README, Bounded work per step). */ \
     X("estimator", "max_update_work", max_update_work, DOUBLE, 18.5, 0.0, DBL_MAX, 0, "Mflop", \
@@ -89,7 +89,7 @@ typedef enum {
       "operations (0: no bound). The update with n states and m rows costs about " \
       "n^2 m + n m^2 + m^3 / 3 flops, so the bound admits fewer observations the larger the " \
       "window: a flat worst case. At least one observation is always used; the inliers left " \
-      "out (evenly spread) stay in the window for later frames.") \
+      "out (see rotate_deferred) stay in the window for later frames.") \
     /* On: at budgets of 22 Mflop and below the even spread leaves some landmarks never updated \
        (README, Bounded work per step). */ \
     X("estimator", "rotate_deferred", rotate_deferred, BOOL, 1, 0, 1, 0, "", \
