@@ -904,6 +904,46 @@ void test_sparse_frame_without_consensus_keeps_the_gate_verdict(void)
     }
 }
 
+/*
+ * A frame of two rows has no majority to outvote an outlier: of its six pixel
+ * variance samples the median is the outlier's smallest. A 60 px mismatch would
+ * multiply the pixel variance by several at once; capped at 100 variances in use,
+ * a sample moves it by at most w x 100 / 0.455 (w = 1 - exp(-2 / 1000) for two rows):
+ * 44%, 20% in standard deviation.
+ */
+void test_an_outlier_in_a_sparse_frame_moves_the_pixel_noise_a_bounded_step(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    vl_imu_sample_t s = start_at(&cfg, 0);
+    make_frame(&cfg, &frame, 0, 2, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(2, vl_window_size(&est));
+    vl_pose_t before, after;
+    for (int64_t step = 1; step <= 3; ++step) {
+        s.utime = 100000 * step;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        make_frame(&cfg, &frame, s.utime, 2, 0);
+        if (step == 3) {
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &before));
+            frame.obs[1].u_left += 60.0;
+            frame.obs[1].u_right += 60.0;
+            frame.obs[1].v_left += 60.0;
+            frame.obs[1].v_right += 60.0;
+        }
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    }
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->observations_gated);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &after));
+    const double ratio = after.pixel_noise / before.pixel_noise;
+    printf("pixel noise %.4f px before the outlier, %.4f px after (x%.4f)\n", before.pixel_noise, after.pixel_noise,
+           ratio);
+    TEST_ASSERT_TRUE(ratio > 1.15); /* the outlier counts... */
+    TEST_ASSERT_TRUE(ratio < 1.21); /* ...as a bounded step */
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -933,5 +973,6 @@ int main(void)
     RUN_TEST(test_repeat_noise_moves_the_observed_landmarks_together_and_nothing_else);
     RUN_TEST(test_repeat_noise_acts_at_repeated_images_only);
     RUN_TEST(test_sparse_frame_without_consensus_keeps_the_gate_verdict);
+    RUN_TEST(test_an_outlier_in_a_sparse_frame_moves_the_pixel_noise_a_bounded_step);
     return UNITY_END();
 }

@@ -382,9 +382,9 @@ void test_realistic_sparse_drives_with_noisy_velocities_do_no_harm(void)
  * realistic conditions capped at 5) and clean velocities, whose only error is the
  * simulator's constant angular offset. With so few observations a frame often has
  * no two that agree, and single seeds swing by tens of metres with any change of
- * which observations are used: over seeds 1 to 8, one does harm, seed 2 without the
- * repeated images' landmark noise (35.97 against 31.55 m), seed 1 with it (35.94
- * against 24.47 m; README, What does not work yet). So: no more than one seed of
+ * which observations are used (or on another CPU's last digits): over seeds 1 to 8,
+ * none does harm with the pixel noise samples capped (the closest, seed 1: 23.69
+ * against 24.47 m), one did before (seed 1, 35.94 m). So: no more than one seed of
  * the eight, and less error than dead reckoning over the eight together.
  */
 void test_realistic_sparsest_clean_drive_does_no_harm(void)

@@ -14,6 +14,8 @@
 #define VL_PIXEL_NOISE_MEMORY 1000.0
 /* Median of the chi-square distribution with one degree of freedom: a median of squares to a variance. */
 #define VL_CHI2_1_MEDIAN 0.455
+/* Largest pixel variance sample, in variances in use: 10 sigma (lower caps cost the sparsest noisy cells). */
+#define VL_PIXEL_SAMPLE_CAP 100.0
 /* Step of the velocity noise in log-variance per frame, at a frame that fully informs the pose. */
 #define VL_VELOCITY_NOISE_GAIN 0.05
 /* Bounds on what one frame's seen-to-expected correction ratio counts as. */
@@ -113,6 +115,14 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
     pixel_samples(e, rows, first_rejected, k, -1.0, samples, &n);
     if (n < 3u) {
         return;
+    }
+    /* The median outvotes a minority of outliers only where a frame has rows enough;
+     * on a frame of one or two rows it is an outlier's own sample, which at once can
+     * multiply the variance by a hundred. So a sample counts for at most what no
+     * Gaussian pixel gives: VL_PIXEL_SAMPLE_CAP times the variance in use. */
+    const double cap = VL_PIXEL_SAMPLE_CAP * e->pixel_var;
+    for (uint32_t i = 0; i < n; ++i) {
+        samples[i] = samples[i] > cap ? cap : samples[i];
     }
     const double sample = select_kth(samples, n, n / 2u) / VL_CHI2_1_MEDIAN;
     const double w = 1.0 - exp(-(double)(n / VL_OBS_DIM) / VL_PIXEL_NOISE_MEMORY);

@@ -41,6 +41,7 @@ NOISE_ADAPT_RANGE = 100.0    # adapted standard deviations stay within 100x of t
 CONTRADICTION_RUN = 2        # re-associated frames in a row that widen the noise
 PIXEL_NOISE_MEMORY = 1000.0  # rows the pixel noise estimate averages over
 CHI2_1_MEDIAN = 0.455        # median of chi-square(1): a median of squares to a variance
+PIXEL_SAMPLE_CAP = 100.0     # a pixel variance sample counts for at most this many variances in use
 VELOCITY_NOISE_GAIN = 0.05
 VELOCITY_RATIO_MIN, VELOCITY_RATIO_MAX = 0.1, 10.0
 VELOCITY_MIN_INFORMATION = 1e-12
@@ -813,8 +814,9 @@ class Filter:
         """Residual-based covariance matching: after the update, a used row's post-fit residual e
         has E[e^2] = R_rr - (H P+ H^T)_rr, a rejected row's E[e^2] = R_rr + (H P+ H^T)_rr, so
         (e^2 +- (H P+ H^T)_rr) / share is a sample of the pixel variance; the median over the used
-        and the rejected rows (the deferred ones left out), / 0.455, enters an average that forgets
-        faster the more rows there are."""
+        and the rejected rows (the deferred ones left out), each capped at 100 variances in use (a
+        frame of one or two rows has no majority to outvote an outlier), / 0.455, enters an average
+        that forgets faster the more rows there are."""
         samples = []
         for rows, fitted in ((used, 1.0), (rejected, -1.0)):
             for r in rows:
@@ -824,7 +826,8 @@ class Filter:
                 samples.extend((e * e + fitted * (np.diag(S) - r.noise)) / STEREO_SHARE)
         if len(samples) < 3:
             return
-        sample = np.partition(np.array(samples), len(samples) // 2)[len(samples) // 2] / CHI2_1_MEDIAN
+        samples = np.minimum(np.array(samples), PIXEL_SAMPLE_CAP * self.var_px)
+        sample = np.partition(samples, len(samples) // 2)[len(samples) // 2] / CHI2_1_MEDIAN
         w = 1.0 - math.exp(-(len(samples) // 3) / PIXEL_NOISE_MEMORY)
         self.var_px = _clamp_var((1.0 - w) * self.var_px + w * sample, self.cfg["pixel"])
 
