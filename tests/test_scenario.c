@@ -164,7 +164,8 @@ static void check_nees(const char *name, double density, double velocity_scale)
         sc.angular_noise *= velocity_scale;
         cfg.linear_velocity_noise = sc.linear_noise;
         cfg.angular_velocity_noise = sc.angular_noise;
-        /* No outliers in the simulation: plain EKF, so nothing but the model is tested. */
+        /* No outliers in the simulation: no outlier tests, so nothing but the model and the
+         * noise adaptation (on, as by default) is tested. */
         cfg.gate_chi2 = 0.0;
         run(&sc, &cfg, &res);
         observations += vl_get_counters(&est)->observations_received;

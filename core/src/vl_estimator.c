@@ -252,6 +252,28 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
 /* ---------------------------------------------------------------- update */
 
 /*
+ * The joint update on rows[0, used), then the noise adaptation from it: the used
+ * rows and the rejected ones, rows[partitioned, k) (the inliers between were
+ * deferred by the time bound).
+ */
+static vl_status_t update_and_adapt(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t used, uint32_t partitioned,
+                                    uint32_t k)
+{
+    double prior_diag[6];
+    for (uint32_t i = 0; i < 6; ++i) {
+        prior_diag[i] = *vl_P_at(e, i, i);
+    }
+    const vl_status_t st = vl_update_apply(e, rows, used);
+    const int adapt = st == VL_OK && used > 0 && e->cfg.adaptive_noise;
+    vl_work_update(e, vl_state_dim(e), used, adapt, used + (k - partitioned));
+    if (adapt) {
+        vl_noise_adapt_pixel(e, rows, used, partitioned, k);
+        vl_noise_adapt_velocity(e, prior_diag);
+    }
+    return st;
+}
+
+/*
  * Fuses the frame's k update rows: the gate; a re-associated frame is distrusted
  * as a whole; otherwise RANSAC picks the inliers, the joint update runs on them
  * (at most max_update_observations), the noise adapts, and the rejected rows
@@ -265,8 +287,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     }
     const uint32_t n = vl_state_dim(e);
     if (e->cfg.gate_chi2 <= 0.0) {
-        vl_work_update(e, n, k, 0, 0);
-        return vl_update_apply(e, rows, k); /* no outlier rejection at all (the seed's plain EKF) */
+        return update_and_adapt(e, rows, k, k, k); /* no outlier rejection at all (the seed's plain EKF) */
     }
     const uint32_t contradicting = vl_outliers_gate(e, rows, k);
     vl_work_gate(e, k);
@@ -292,16 +313,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     /* One cap for both updates: the state size does not change between them. */
     const uint32_t cap = vl_rows_cap(e);
     const uint32_t inliers = vl_rows_limit(e, rows, partitioned, cap);
-    double prior_diag[6];
-    for (uint32_t i = 0; i < 6; ++i) {
-        prior_diag[i] = *vl_P_at(e, i, i);
-    }
-    vl_status_t st = vl_update_apply(e, rows, inliers);
-    vl_work_update(e, n, inliers, st == VL_OK && inliers > 0 && e->cfg.adaptive_noise, inliers + rest);
-    if (st == VL_OK && inliers > 0 && e->cfg.adaptive_noise) {
-        vl_noise_adapt_pixel(e, rows, inliers, partitioned, k);
-        vl_noise_adapt_velocity(e, prior_diag);
-    }
+    vl_status_t st = update_and_adapt(e, rows, inliers, partitioned, k);
     if (st != VL_OK || rest == 0) {
         e->counters.observations_gated += rest;
         return st;

@@ -130,6 +130,19 @@ def test_reference_agrees_on_a_sparse_drive_with_outliers(build_dir, tmp_path, m
     assert rc == 1
 
 
+def test_reference_agrees_without_outlier_rejection(build_dir, tmp_path):
+    """gate_chi2 = 0 (no outlier test at all) with the noise adapted: every row is used and read by the
+    adaptation. Without rejection the sample's outliers leave worse-conditioned updates, so the two
+    agree to 6e-8 m here (2e-8 m with the noise fixed), not 1e-9; the adaptation matters (metres)."""
+    ini = tmp_path / "plain.ini"
+    ini.write_text("[outliers]\ngate_chi2 = 0\n")
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "50")
+    assert fig["agreement"]["frames_compared"] == 50
+    assert fig["agreement"]["position_max_m"] < 1e-7
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "50", "--set", "adaptive_noise=false")
+    assert fig["agreement"]["position_max_m"] > 0.1
+
+
 def test_sample_velocity_weights():
     from reference.vl_reference import sample_velocity
     held, new = np.array([0.0, 2.0]), np.array([1.0, 4.0])

@@ -654,6 +654,16 @@ class Filter:
 
     # ---- outliers and the joint update (vl_outliers.c, vl_update.c, vl_noise.c)
 
+    def update_and_adapt(self, rows, used, rejected):
+        """The joint update on rows[:used], then the noise adaptation from the used and the rejected
+        rows."""
+        prior_diag = np.diag(self.P)[:6].copy()
+        ok = self.apply(rows[:used])
+        if ok and used > 0 and self.cfg["adaptive_noise"]:
+            self.adapt_pixel_noise(rows[:used], rejected)
+            self.adapt_velocity_noise(prior_diag)
+        return ok
+
     def fuse(self, frame, rows):
         """Gate; a re-associated frame is distrusted as a whole; otherwise RANSAC picks the inliers,
         the joint update runs on at most max_update_observations of them, the noise adapts, and the
@@ -661,8 +671,8 @@ class Filter:
         cfg, k = self.cfg, len(rows)
         if k == 0:
             return True
-        if cfg["gate_chi2"] <= 0.0:
-            return self.apply(rows)
+        if cfg["gate_chi2"] <= 0.0:  # no outlier rejection at all (the seed's plain EKF)
+            return self.update_and_adapt(rows, k, [])
         inlier = [mahalanobis3(self.innovation_cov(r), r.residual) <= cfg["gate_chi2"] for r in rows]
         failed = k - sum(inlier)
         if k >= MIN_ROWS_FOR_REASSOCIATION and failed > cfg["max_broken_fraction"] * k:
@@ -696,11 +706,7 @@ class Filter:
                     j = (i * partitioned) // cap
                     rows[i], rows[j] = rows[j], rows[i]
             used = cap
-        prior_diag = np.diag(self.P)[:6].copy()
-        ok = self.apply(rows[:used])
-        if ok and used > 0 and cfg["adaptive_noise"]:
-            self.adapt_pixel_noise(rows[:used], rows[partitioned:])
-            self.adapt_velocity_noise(prior_diag)
+        ok = self.update_and_adapt(rows, used, rows[partitioned:])
         if not ok or rest == 0:
             return ok
         rescued = []
