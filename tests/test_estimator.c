@@ -872,32 +872,45 @@ void test_admissions_per_frame_are_bounded_and_the_rest_wait(void)
  * instead moves the vehicle 0.15 m toward the jump whenever the jump is drawn
  * first, so the jump comes at several frame indices (they seed the draws).
  */
-void test_sparse_frame_without_consensus_keeps_the_gate_verdict(void)
+/*
+ * Two landmarks ahead of a vehicle at rest, admitted at the first frame; frames 1 to
+ * last follow, and in the last one the second landmark's pixels move by (du, dv).
+ * *before is the pose before that frame.
+ */
+static void two_landmarks_then_a_jump(int64_t last, double du, double dv, vl_pose_t *before)
 {
     static vl_stereo_frame_t frame;
-    for (int32_t first = 0; first < 8; ++first) {
-        vl_config_t cfg;
-        kitti_config(&cfg);
-        cfg.min_track_length = 1;
-        vl_imu_sample_t s = start_at(&cfg, 0);
-        make_frame(&cfg, &frame, 0, 2, 0);
-        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
-        TEST_ASSERT_EQUAL_UINT32(2, vl_window_size(&est));
-        for (int64_t step = 1; step <= 1 + first; ++step) { /* the frame index seeds the hypotheses */
-            s.utime = 100000 * step;
-            TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
-            make_frame(&cfg, &frame, s.utime, 2, 0);
-            if (step == 1 + first) {
-                frame.obs[1].u_left += 25.0;
-                frame.obs[1].u_right += 25.0;
-            }
-            TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    vl_imu_sample_t s = start_at(&cfg, 0);
+    make_frame(&cfg, &frame, 0, 2, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(2, vl_window_size(&est));
+    for (int64_t step = 1; step <= last; ++step) {
+        s.utime = 100000 * step;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        make_frame(&cfg, &frame, s.utime, 2, 0);
+        if (step == last) {
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, before));
+            frame.obs[1].u_left += du;
+            frame.obs[1].u_right += du;
+            frame.obs[1].v_left += dv;
+            frame.obs[1].v_right += dv;
         }
-        vl_pose_t pose;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    }
+}
+
+void test_sparse_frame_without_consensus_keeps_the_gate_verdict(void)
+{
+    for (int64_t last = 1; last <= 8; ++last) { /* the frame index seeds the hypotheses */
+        vl_pose_t before, pose;
+        two_landmarks_then_a_jump(last, 25.0, 0.0, &before);
         TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
         const double moved = sqrt(pose.position[0] * pose.position[0] + pose.position[1] * pose.position[1] +
                                   pose.position[2] * pose.position[2]);
-        printf("jump at frame %d: pose moved %.4f m, %llu observations gated\n", (int)first + 1, moved,
+        printf("jump at frame %d: pose moved %.4f m, %llu observations gated\n", (int)last, moved,
                (unsigned long long)vl_get_counters(&est)->observations_gated);
         TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->observations_gated);
         TEST_ASSERT_TRUE(moved < 0.01);
@@ -913,28 +926,8 @@ void test_sparse_frame_without_consensus_keeps_the_gate_verdict(void)
  */
 void test_an_outlier_in_a_sparse_frame_moves_the_pixel_noise_a_bounded_step(void)
 {
-    static vl_stereo_frame_t frame;
-    vl_config_t cfg;
-    kitti_config(&cfg);
-    cfg.min_track_length = 1;
-    vl_imu_sample_t s = start_at(&cfg, 0);
-    make_frame(&cfg, &frame, 0, 2, 0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
-    TEST_ASSERT_EQUAL_UINT32(2, vl_window_size(&est));
     vl_pose_t before, after;
-    for (int64_t step = 1; step <= 3; ++step) {
-        s.utime = 100000 * step;
-        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
-        make_frame(&cfg, &frame, s.utime, 2, 0);
-        if (step == 3) {
-            TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &before));
-            frame.obs[1].u_left += 60.0;
-            frame.obs[1].u_right += 60.0;
-            frame.obs[1].v_left += 60.0;
-            frame.obs[1].v_right += 60.0;
-        }
-        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
-    }
+    two_landmarks_then_a_jump(3, 60.0, 60.0, &before);
     TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->observations_gated);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &after));
     const double ratio = after.pixel_noise / before.pixel_noise;
