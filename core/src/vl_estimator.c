@@ -259,16 +259,18 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
 static vl_status_t update_and_adapt(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t used, uint32_t partitioned,
                                     uint32_t k)
 {
-    double prior_diag[6];
+    double prior_pose[36];
     for (uint32_t i = 0; i < 6; ++i) {
-        prior_diag[i] = *vl_P_at(e, i, i);
+        for (uint32_t j = 0; j < 6; ++j) {
+            prior_pose[6 * i + j] = *vl_P_at(e, i, j);
+        }
     }
     const vl_status_t st = vl_update_apply(e, rows, used);
     const int adapt = st == VL_OK && used > 0 && e->cfg.adaptive_noise;
     vl_work_update(e, vl_state_dim(e), used, adapt, used + (k - partitioned));
     if (adapt) {
         vl_noise_adapt_pixel(e, rows, used, partitioned, k);
-        vl_noise_adapt_velocity(e, prior_diag);
+        vl_noise_adapt_velocity(e, prior_pose);
     }
     return st;
 }

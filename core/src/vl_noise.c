@@ -130,32 +130,58 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
 }
 
 /*
+ * -E[log clamp(q / k, VL_VELOCITY_RATIO_MIN, VL_VELOCITY_RATIO_MAX)] for q ~
+ * chi-square(k), at k = 1, 1.5, 2, 2.5, 3 (numerical integration; the NumPy
+ * reference holds the same table and tests/python/test_reference.py recomputes it):
+ * how far the logarithm of a seen-to-expected ratio falls short of zero on average
+ * when the filter is right. Without it the variance settles where that logarithm
+ * averages zero, too low by this much (from a prior 10x too small, the simulator's
+ * linear velocity noise settled at 0.215 against 0.5 m/s).
+ */
+static const double vl_log_ratio_bias[5] = {0.768765, 0.593114, 0.479665, 0.400083, 0.341355};
+
+/* The bias at k degrees of freedom, the correction block's effective dimension
+ * (tr M)^2 / tr(M^2) (within [1, 3]): linear between the tabulated points. */
+static double log_ratio_bias(double k)
+{
+    const double t = 2.0 * ((k < 1.0 ? 1.0 : (k > 3.0 ? 3.0 : k)) - 1.0);
+    const int i = t >= 3.0 ? 3 : (int)t;
+    const double f = t - (double)i;
+    return (1.0 - f) * vl_log_ratio_bias[i] + f * vl_log_ratio_bias[i + 1];
+}
+
+/*
  * Covariance matching for the velocity noise on the pose correction: for a
  * consistent filter E[dx dx^T] = P- - P+ on the pose block. More correction than
  * the filter expected means its prediction was too confident (noise too small),
  * less means too timid. Each variance moves by a fraction of log(ratio), weighted
  * by how much the frame informed that block, so weak frames barely move it.
  */
-void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_diag[6])
+void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36])
 {
     const double *dx = e->work_dx;
     double *var[2] = {&e->linear_velocity_var, &e->angular_velocity_var};
     const double configured[2] = {e->cfg.linear_velocity_noise, e->cfg.angular_velocity_noise};
     for (int b = 0; b < 2; ++b) {
-        double expected = 0.0, seen = 0.0, prior = 0.0;
+        double expected = 0.0, seen = 0.0, prior = 0.0, spread = 0.0;
         for (int i = 3 * b; i < 3 * b + 3; ++i) {
-            prior += prior_diag[i];
-            expected += prior_diag[i] - *vl_P_at(e, (uint32_t)i, (uint32_t)i);
+            prior += prior_pose[7 * i];
+            expected += prior_pose[7 * i] - *vl_P_at(e, (uint32_t)i, (uint32_t)i);
             seen += dx[i] * dx[i];
+            for (int j = 3 * b; j < 3 * b + 3; ++j) {
+                const double m = prior_pose[6 * i + j] - *vl_P_at(e, (uint32_t)i, (uint32_t)j);
+                spread += m * m;
+            }
         }
-        if (!(expected > VL_VELOCITY_MIN_INFORMATION * prior) || !(prior > 0.0)) {
+        if (!(expected > VL_VELOCITY_MIN_INFORMATION * prior) || !(prior > 0.0) || !(spread > 0.0)) {
             continue;
         }
         double ratio = seen / expected;
         ratio = ratio < VL_VELOCITY_RATIO_MIN ? VL_VELOCITY_RATIO_MIN
                                               : (ratio > VL_VELOCITY_RATIO_MAX ? VL_VELOCITY_RATIO_MAX : ratio);
         const double gain = VL_VELOCITY_NOISE_GAIN * (expected / prior);
-        *var[b] = clamp_var(*var[b] * exp(gain * log(ratio)), configured[b]);
+        *var[b] =
+            clamp_var(*var[b] * exp(gain * (log(ratio) + log_ratio_bias(expected * expected / spread))), configured[b]);
     }
 }
 

@@ -31,7 +31,7 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
  * Velocity noise from the pose correction in e->work_dx against the pose
  * block's variance before the update (prior_diag, the first six diagonal entries).
  */
-void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_diag[6]);
+void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36]);
 
 /** A frame that contradicts the prior after others did: widens all three noise levels. */
 void vl_noise_widen(vl_estimator_t *e);

@@ -143,6 +143,19 @@ def test_reference_agrees_without_outlier_rejection(build_dir, tmp_path):
     assert fig["agreement"]["position_max_m"] > 0.1
 
 
+def test_log_ratio_bias_table():
+    """The table the core and the reference share: -E[log clamp(q / k, 0.1, 10)] for q chi-square(k)."""
+    from scipy import integrate, stats
+    from reference.vl_reference import LOG_RATIO_BIAS, VELOCITY_RATIO_MAX, VELOCITY_RATIO_MIN
+    for k, bias in zip((1.0, 1.5, 2.0, 2.5, 3.0), LOG_RATIO_BIAS):
+        pdf = stats.chi2(k).pdf
+        lo, hi = VELOCITY_RATIO_MIN * k, VELOCITY_RATIO_MAX * k
+        inner = integrate.quad(lambda q: np.log(q / k) * pdf(q), 0.0, hi, points=[lo], limit=400)[0]
+        inner -= integrate.quad(lambda q: np.log(q / k) * pdf(q), 0.0, lo, limit=400)[0]
+        mean = inner + np.log(VELOCITY_RATIO_MIN) * stats.chi2(k).cdf(lo) + np.log(VELOCITY_RATIO_MAX) * stats.chi2(k).sf(hi)
+        assert -mean == pytest.approx(bias, abs=2e-6)
+
+
 def test_sample_velocity_weights():
     from reference.vl_reference import sample_velocity
     held, new = np.array([0.0, 2.0]), np.array([1.0, 4.0])

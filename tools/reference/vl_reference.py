@@ -44,6 +44,8 @@ CHI2_1_MEDIAN = 0.455        # median of chi-square(1): a median of squares to a
 PIXEL_SAMPLE_CAP = 100.0     # a pixel variance sample counts for at most this many variances in use
 VELOCITY_NOISE_GAIN = 0.05
 VELOCITY_RATIO_MIN, VELOCITY_RATIO_MAX = 0.1, 10.0
+# -E[log clamp(q / k, 0.1, 10)] for q ~ chi-square(k), k = 1, 1.5, 2, 2.5, 3 (numerical integration)
+LOG_RATIO_BIAS = (0.768765, 0.593114, 0.479665, 0.400083, 0.341355)
 VELOCITY_MIN_INFORMATION = 1e-12
 WIDEN_ON_CONTRADICTION = 4.0
 SERIES_ANGLE = 1.0           # below this angle (rad) the Lie-group coefficients come from series
@@ -229,6 +231,15 @@ def joint_update_flops(n, k):
     downdate = n * (n + 1) * m
     correct = 1000 + 39 * ((n - CORE_DIM) // 3)
     return pht + s_rows + chol + whiten + dx + downdate + correct
+
+
+def log_ratio_bias(k):
+    """-E[log clamp(q / k, 0.1, 10)] for q chi-square with k degrees of freedom (k within [1, 3]),
+    linear between LOG_RATIO_BIAS's points at k = 1, 1.5, ..., 3."""
+    t = 2.0 * (min(max(k, 1.0), 3.0) - 1.0)
+    i = 3 if t >= 3.0 else int(t)
+    f = t - i
+    return (1.0 - f) * LOG_RATIO_BIAS[i] + f * LOG_RATIO_BIAS[i + 1]
 
 
 def stereo_noise(pixel_var):
@@ -657,11 +668,11 @@ class Filter:
     def update_and_adapt(self, rows, used, rejected):
         """The joint update on rows[:used], then the noise adaptation from the used and the rejected
         rows."""
-        prior_diag = np.diag(self.P)[:6].copy()
+        prior_pose = self.P[:6, :6].copy()
         ok = self.apply(rows[:used])
         if ok and used > 0 and self.cfg["adaptive_noise"]:
             self.adapt_pixel_noise(rows[:used], rejected)
-            self.adapt_velocity_noise(prior_diag)
+            self.adapt_velocity_noise(prior_pose)
         return ok
 
     def fuse(self, frame, rows):
@@ -837,19 +848,24 @@ class Filter:
         w = 1.0 - math.exp(-(len(samples) // 3) / PIXEL_NOISE_MEMORY)
         self.var_px = _clamp_var((1.0 - w) * self.var_px + w * sample, self.cfg["pixel"])
 
-    def adapt_velocity_noise(self, prior_diag):
-        """Covariance matching on the pose correction, E[dx dx^T] = P- - P+: each block's variance
-        moves by gain x log(seen / expected), the gain weighted by how much the frame informed it."""
+    def adapt_velocity_noise(self, prior_pose):
+        """Covariance matching on the pose correction, E[dx dx^T] = P- - P+ = M: each block's variance
+        moves by gain x (log(seen / expected) + bias), the gain weighted by how much the frame informed
+        it; bias = -E[log clamp(chi2_k / k, 0.1, 10)] with k = tr(M)^2 / tr(M^2) makes the step zero on
+        average when the filter is right."""
         for b, (name, key) in enumerate((("var_v", "linear_velocity"), ("var_w", "angular_velocity"))):
             blk = slice(3 * b, 3 * b + 3)
-            prior = prior_diag[blk].sum()
-            expected = (prior_diag[blk] - np.diag(self.P)[blk]).sum()
+            M = prior_pose[blk, blk] - self.P[blk, blk]
+            prior = np.trace(prior_pose[blk, blk])
+            expected = np.trace(M)
+            spread = float((M * M).sum())
             seen = float(self.dx[blk] @ self.dx[blk])
-            if not expected > VELOCITY_MIN_INFORMATION * prior or not prior > 0.0:
+            if not expected > VELOCITY_MIN_INFORMATION * prior or not prior > 0.0 or not spread > 0.0:
                 continue
             ratio = min(max(seen / expected, VELOCITY_RATIO_MIN), VELOCITY_RATIO_MAX)
             gain = VELOCITY_NOISE_GAIN * (expected / prior)
-            setattr(self, name, _clamp_var(getattr(self, name) * math.exp(gain * math.log(ratio)), self.cfg[key]))
+            step = gain * (math.log(ratio) + log_ratio_bias(expected * expected / spread))
+            setattr(self, name, _clamp_var(getattr(self, name) * math.exp(step), self.cfg[key]))
 
     def widen_noise(self):
         """Frame after frame contradicting the prior: every noise x4 (within the bounds)."""
