@@ -154,8 +154,9 @@ static double log_ratio_bias(double k)
  * Covariance matching for the velocity noise on the pose correction: for a
  * consistent filter E[dx dx^T] = P- - P+ on the pose block. More correction than
  * the filter expected means its prediction was too confident (noise too small),
- * less means too timid. Each variance moves by a fraction of log(ratio), weighted
- * by how much the frame informed that block, so weak frames barely move it.
+ * less means too timid. Each variance moves by a fraction of log(ratio) plus that
+ * logarithm's bias (zero on average when the filter is right), weighted by how much
+ * the frame informed that block, so weak frames barely move it.
  */
 void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36])
 {

@@ -29,7 +29,8 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
 
 /**
  * Velocity noise from the pose correction in e->work_dx against the pose
- * block's variance before the update (prior_diag, the first six diagonal entries).
+ * block's covariance before the update (prior_pose, the leading 6x6 block of P,
+ * row-major).
  */
 void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36]);
 
