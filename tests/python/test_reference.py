@@ -170,7 +170,7 @@ def test_sample_velocity_weights():
 
 
 def test_comparison_catches_a_change_of_the_math(build_dir, tmp_path):
-    rc, fig = compare(build_dir, tmp_path, "--max-steps", "20", "--set", "pixel=1.5000015")
+    rc, fig = compare(build_dir, tmp_path, "--max-steps", "50", "--set", "pixel=1.5000015")
     assert fig["agreement"]["position_max_m"] > 10 * TOLERANCE
     assert rc == 1
 
