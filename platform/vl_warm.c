@@ -56,6 +56,11 @@ int vl_warm_window(const vl_warm_t *w, int64_t now_us, int64_t *from_us, int64_t
     return now_us < *until_us;
 }
 
+int vl_warm_frame_due(const vl_warm_t *w, int64_t utime)
+{
+    return w->period_us > 0 && utime >= w->last_utime + w->period_us - w->period_us / 8;
+}
+
 uint64_t vl_warm_touch(const void *p, size_t bytes)
 {
     const volatile unsigned char *b = (const volatile unsigned char *)p;

@@ -59,6 +59,13 @@ void vl_warm_note_frame(vl_warm_t *w, int64_t utime, int64_t arrival_us);
 int vl_warm_window(const vl_warm_t *w, int64_t now_us, int64_t *from_us, int64_t *until_us);
 
 /**
+ * 1 when a frame is expected at @p utime (us, the inputs' own time): the period is known and
+ * @p utime is no more than an eighth of it before the last frame's time plus the period (an IMU
+ * sample of a frame's instant, whose frame is about to come). 0 otherwise.
+ */
+int vl_warm_frame_due(const vl_warm_t *w, int64_t utime);
+
+/**
  * Reads @p bytes from @p p, one load per 64-byte line, so that they are in the cache and the TLB
  * when the step comes. Returns a value computed from them (so that the reads are not optimized
  * out).

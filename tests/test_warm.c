@@ -106,6 +106,20 @@ void test_time_that_does_not_advance_restarts_the_period(void)
     TEST_ASSERT_EQUAL_INT64(6 * PERIOD + 2 * PERIOD - 1000, from);
 }
 
+void test_a_frame_is_due_from_an_eighth_of_a_period_before_its_time(void)
+{
+    vl_warm_t w;
+    vl_warm_init(&w, 0); /* the prediction of the frame's time holds with warming off */
+    TEST_ASSERT_EQUAL_INT(0, vl_warm_frame_due(&w, 5000000));
+    feed(&w, 3, 0, NULL);
+    const int64_t next = 1000000 + 3 * PERIOD; /* the next frame's time */
+    TEST_ASSERT_EQUAL_INT(1, vl_warm_frame_due(&w, next));
+    TEST_ASSERT_EQUAL_INT(1, vl_warm_frame_due(&w, next + 5 * PERIOD)); /* overdue */
+    TEST_ASSERT_EQUAL_INT(1, vl_warm_frame_due(&w, next - PERIOD / 8));
+    TEST_ASSERT_EQUAL_INT(0, vl_warm_frame_due(&w, next - PERIOD / 8 - 1));
+    TEST_ASSERT_EQUAL_INT(0, vl_warm_frame_due(&w, next - PERIOD / 2)); /* an IMU sample between frames */
+}
+
 void test_touch_reads_one_byte_of_every_line(void)
 {
     static unsigned char buf[64 * 100 + 10];
@@ -127,6 +141,7 @@ int main(void)
     RUN_TEST(test_the_period_is_the_median_so_a_dropped_frame_does_not_move_it);
     RUN_TEST(test_a_period_under_four_warm_times_is_not_warmed);
     RUN_TEST(test_time_that_does_not_advance_restarts_the_period);
+    RUN_TEST(test_a_frame_is_due_from_an_eighth_of_a_period_before_its_time);
     RUN_TEST(test_touch_reads_one_byte_of_every_line);
     return UNITY_END();
 }

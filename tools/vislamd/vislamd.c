@@ -77,6 +77,7 @@
 #define BUSY_POLL_MAX_US 1000000
 #define ENCODE_BUF 1024
 #define STEP_SAMPLES_MAX 65536 /* --step-samples: frames kept (3.5 MiB; 1.8 h at 10 Hz), later ones counted */
+#define SUPERSEDE_WAIT_US 1000 /* --supersede-imu-poses: how long an IMU pose at a frame's due time waits for it */
 #define STEP_SAMPLES_BUF 65536 /* its stdio buffer, given at start-up so that writing it does not allocate */
 
 typedef struct {
@@ -155,7 +156,8 @@ typedef struct {
 
     /* outputs */
     struct {
-        int have; /* an IMU pose held while the frame behind it is stepped */
+        int have;            /* an IMU pose held for the frame of its time */
+        int64_t deadline_us; /* CLOCK_MONOTONIC: sent then if no frame came; 0: the frame is already queued */
         int64_t utime;
         uint64_t sequence;
         vl_pose_t pose;
@@ -573,7 +575,7 @@ static int frame_waiting(daemon_t *d, int64_t utime)
            next.size >= 16 && be64(next.payload + 8) >= utime;
 }
 
-/* The held IMU pose, sent after all: the frame behind it gave no pose (or another pose came first). */
+/* The held IMU pose, sent after all: its frame gave no pose, did not come in time, or another pose came first. */
 static void publish_held(daemon_t *d)
 {
     d->held.have = 0;
@@ -584,9 +586,11 @@ static void publish_held(daemon_t *d)
 /*
  * Session sink: publish_pose, timed so that the step's own time can leave it out. With
  * --supersede-imu-poses an IMU pose is held when a frame of the same or a later time waits behind
- * its sample, and dropped (counted) when that frame's pose comes: the frame's pose is the
- * estimate at that time with the frame's information too, and the frame need not wait for two
- * sends. Any other pose first, or none, and the held one is sent (counted as late), so no pose is
+ * its sample on the socket, or when a frame is due at its time (vl_warm_frame_due: the sample
+ * came first, its frame is on the way) for up to SUPERSEDE_WAIT_US; it is dropped (counted) when
+ * that frame's pose comes: the frame's pose is the estimate at that time with the frame's
+ * information too, and the frame need not wait for two sends. Any other pose first, no pose from
+ * the next input, or no frame in time, and the held one is sent (counted as late), so no pose is
  * lost without a newer one in its place and the sequence numbers on the wire still increase.
  */
 static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t sequence, const vl_pose_t *pose)
@@ -601,8 +605,11 @@ static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t 
             publish_held(d);
         }
     }
-    if (step == VL_SESSION_STEP_PROPAGATE && d->opt.supersede_imu_poses && frame_waiting(d, utime)) {
+    const int queued = step == VL_SESSION_STEP_PROPAGATE && d->opt.supersede_imu_poses && frame_waiting(d, utime);
+    if (queued ||
+        (step == VL_SESSION_STEP_PROPAGATE && d->opt.supersede_imu_poses && vl_warm_frame_due(&d->warm, utime))) {
         d->held.have = 1;
+        d->held.deadline_us = queued ? 0 : vl_clock_monotonic_us() + SUPERSEDE_WAIT_US;
         d->held.utime = utime;
         d->held.sequence = sequence;
         d->held.pose = *pose;
@@ -703,6 +710,7 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
 {
     step_sample_t sample;
     const int held_before = d->held.have;
+    const uint64_t held_sequence = d->held.sequence;
     d->handler_mono_us = vl_clock_monotonic_us();
     sample.handler_ns = vl_clock_realtime_ns();
     sample.free_ns = d->free_ns;
@@ -723,8 +731,8 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
     const int64_t s0 = vl_clock_monotonic_ns();
     const vl_session_step_t step = vl_session_input(&d->session, ev, &status);
     const int64_t step_ns = vl_clock_monotonic_ns() - s0 - d->sink_ns;
-    if (held_before && d->held.have) {
-        publish_held(d); /* the input behind the held pose gave no pose */
+    if (held_before && d->held.have && d->held.sequence == held_sequence) {
+        publish_held(d); /* the input behind the held pose gave no pose (a pose it held itself stays) */
     }
     d->last_handler_ns = sample.handler_ns;
     d->last_sink_ns = d->sink_ns;
@@ -1096,8 +1104,8 @@ static void print_summary(const daemon_t *d)
             c->observations_implausible, c->frames_imu_silent, n->poses_withheld);
     if (d->opt.supersede_imu_poses) {
         fprintf(stderr,
-                "  superseded IMU poses: %" PRIu64 " not sent (a frame's pose of the same or a later time followed"
-                " at once), %" PRIu64 " held and sent after a frame that gave no pose\n",
+                "  superseded IMU poses: %" PRIu64 " not sent (a frame's pose of the same or a later time followed),"
+                " %" PRIu64 " held and sent late (no frame pose followed in time)\n",
                 d->n.imu_poses_superseded, d->n.imu_poses_sent_late);
     }
     if (d->opt.warm_us > 0) {
@@ -1242,9 +1250,15 @@ int main(int argc, char **argv)
                 next_status = now + STATUS_PERIOD_US; /* do not burst after a stall */
             }
         }
+        if (d->held.have && d->held.deadline_us != 0 && now >= d->held.deadline_us) {
+            publish_held(d); /* its frame did not come in time */
+        }
         int64_t wake = next_status;
         if (d->watchdog_period_us > 0 && d->next_watchdog_us < wake) {
             wake = d->next_watchdog_us;
+        }
+        if (d->held.have && d->held.deadline_us != 0 && d->held.deadline_us < wake) {
+            wake = d->held.deadline_us;
         }
         if (warm_for_frame(d, now, &wake)) {
             continue;
