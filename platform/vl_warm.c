@@ -63,9 +63,12 @@ int vl_warm_frame_due(const vl_warm_t *w, int64_t utime)
 
 uint64_t vl_warm_touch(const void *p, size_t bytes)
 {
+    /* Last line first: the start of the block is then what the cache holds most recently (the
+       estimator keeps its state and covariance before its scratch buffers). */
     const volatile unsigned char *b = (const volatile unsigned char *)p;
     uint64_t sum = 0;
-    for (size_t i = 0; i < bytes; i += LINE_BYTES) {
+    for (size_t i = bytes; i > 0;) {
+        i = i > LINE_BYTES ? (i - 1) / LINE_BYTES * LINE_BYTES : 0;
         sum += b[i];
     }
     return sum;

@@ -66,8 +66,8 @@ int vl_warm_window(const vl_warm_t *w, int64_t now_us, int64_t *from_us, int64_t
 int vl_warm_frame_due(const vl_warm_t *w, int64_t utime);
 
 /**
- * Reads @p bytes from @p p, one load per 64-byte line, so that they are in the cache and the TLB
- * when the step comes. Returns a value computed from them (so that the reads are not optimized
+ * Reads @p bytes from @p p, one load per 64-byte line, from the last line to the first, so that
+ * they are in the cache and the TLB when the step comes, the first bytes the most recently read. Returns a value computed from them (so that the reads are not optimized
  * out).
  */
 uint64_t vl_warm_touch(const void *p, size_t bytes);
