@@ -32,6 +32,18 @@ begin_netns_test supersede
 START=$SECONDS
 STEPS=8
 
+echo "== the options"
+"$BIN/vislamd" --warm-us 50001 2>/dev/null
+check "vislamd --warm-us above 50000: a usage error (2)" eq $? 2
+"$BIN/vislamd" --warm-us -1 2>/dev/null
+check "vislamd --warm-us -1: a usage error (2)" eq $? 2
+"$BIN/vislamd" --warm-us 1000 --supersede-imu-poses --print-config >/dev/null
+check "vislamd --warm-us 1000 --supersede-imu-poses: accepted" eq $? 0
+"$BIN/vislam-latency" "$SRC/data/sample.lcmlog" --warm-us x 2>/dev/null
+check "vislam-latency --warm-us x: a usage error (2)" eq $? 2
+"$BIN/vislam-latency" --help | grep -q -- "--supersede-imu-poses"
+check "vislam-latency --help names --supersede-imu-poses" eq $? 0
+
 "$BIN/vislam-sim" --out "$OUT/small.lcmlog" --truth "$OUT/small.tum" --steps "$STEPS" --max-observations 60 2>/dev/null
 check "vislam-sim writes an $STEPS-step log" eq $? 0
 "$BIN/vislam-run" "$OUT/small.lcmlog" --trajectory "$OUT/offline.tum" --quiet

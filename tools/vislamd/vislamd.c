@@ -93,7 +93,7 @@ typedef struct {
     int rt_priority;         /* 0: leave the scheduler alone */
     int cpu;                 /* -1: no affinity */
     int cpu_dma_latency_us;  /* PM QoS request held from start-up to exit; -1: none */
-    int supersede_imu_poses; /* an IMU sample's pose is not sent when a frame of its time or later waits behind it */
+    int supersede_imu_poses; /* an IMU sample's pose is held for a frame of its time or later, dropped when it comes */
     long warm_us;            /* the predictive wake: warm this long before a frame is due; 0: off */
     int no_mlock;
     int quiet;
@@ -130,7 +130,7 @@ typedef struct {
 typedef struct {
     uint64_t bot_poses_out, status_out, publish_errors;
     /* --supersede-imu-poses: IMU poses not sent (a frame's pose of the same or a later time
-       followed at once), and those held for a frame that then gave no pose, sent after it */
+       followed), and those held for a frame whose pose did not follow in time, sent late */
     uint64_t imu_poses_superseded, imu_poses_sent_late;
     uint64_t trajectory_errors;
     /* timing */
@@ -242,11 +242,12 @@ static void usage(FILE *f)
             "                          the next frame is due (the last one's arrival plus the frame period),\n"
             "                          read the estimator's memory, then poll for it without sleeping until\n"
             "                          it comes or N us after it was due; costs up to 2N us of CPU a frame\n"
-            "  --supersede-imu-poses   an IMU sample's pose is not sent when the next message waiting is a\n"
-            "                          frame of the same or a later time (its pose supersedes it): the frame\n"
-            "                          does not wait for that publishing; counted in the exit summary, and\n"
-            "                          sent after the frame if the frame gives no pose\n",
-            STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US, VL_WARM_MAX_US);
+            "  --supersede-imu-poses   an IMU sample's pose is held when the next message waiting is a frame\n"
+            "                          of the same or a later time, or a frame is due at its time (then up to\n"
+            "                          %d us), and not sent when that frame's pose follows: the frame does not\n"
+            "                          wait for that publishing. Counted in the exit summary; sent late when\n"
+            "                          no frame pose follows in time\n",
+            STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US, VL_WARM_MAX_US, SUPERSEDE_WAIT_US);
     fputs(VL_WORKER_USAGE("       "), f);
     fprintf(f,
             "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
