@@ -3,14 +3,16 @@
  * @brief A predictive wake: have the CPU busy and the estimator's memory in cache when the next
  *        frame comes, not idle since the last one.
  *
- * At a camera's rate (10 Hz) the estimation thread idles about 100 ms between frames; the first
- * step after that runs slower than back to back (caches, TLB and the CPU's idle state go cold). A
- * program that knows when the next frame is due sleeps until warm_us before it, reads the
- * estimator's memory once (vl_warm_touch) and then polls for the input without sleeping until it
- * comes or warm_us after it was due. The cost is the spin: up to 2 warm_us of one CPU per frame
- * period. The prediction is the last frame's arrival plus the frame period, the median of the last
- * VL_WARM_INTERVALS intervals of the frames' own times; none until two frames were seen, and none
- * while the period is under 4 warm_us (the spin would be most of the period).
+ * At a camera's rate (10 Hz) the estimation thread idles about 100 ms between frames, and the
+ * first step after that runs slower than back to back. A program that knows when the next frame
+ * is due sleeps until warm_us before it, reads the estimator's memory once (vl_warm_touch) and
+ * then polls for the input without sleeping until it comes or warm_us after it was due: the input
+ * finds it awake, on a busy CPU, with the data in cache (on the machine measured this did not make
+ * the step itself faster; README, Latency). The cost is the spin: up to 2 warm_us of one CPU per
+ * frame period. The prediction is the last frame's arrival plus the frame period, the median of
+ * the last VL_WARM_INTERVALS intervals of the frames' own times; none until two frames were seen,
+ * and no window while the period is under 4 warm_us (the spin would be most of the period).
+ * vl_warm_frame_due uses the same period to tell whether an input's time is a frame's.
  *
  * Plain data, no allocation, no clock read: the caller passes its CLOCK_MONOTONIC times.
  */
