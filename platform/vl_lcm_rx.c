@@ -292,6 +292,36 @@ int vl_lcm_rx_poll(vl_lcm_rx_t *rx, int max)
     return handled;
 }
 
+int vl_lcm_rx_peek(vl_lcm_rx_t *rx, vl_lcm_rx_peek_t *out)
+{
+    if (rx->via_lcm || rx->fd < 0) {
+        return -1;
+    }
+    /* The header, the longest channel name with its NUL and the payload's first bytes: a longer
+       datagram is cut (MSG_TRUNC) in this copy only, the socket keeps it whole. */
+    uint8_t head[LCM_SHORT_HEADER + VL_LCM_RX_CHANNEL_MAX + VL_LCM_RX_PEEK_MAX];
+    ssize_t n;
+    do {
+        n = recv(rx->fd, head, sizeof(head), MSG_PEEK | MSG_DONTWAIT);
+    } while (n < 0 && errno == EINTR);
+    if (n < 0) {
+        return (errno == EAGAIN || errno == EWOULDBLOCK) ? 0 : -1;
+    }
+    if ((size_t)n < LCM_SHORT_HEADER + 1 || be32(head) != LCM_MAGIC_SHORT) {
+        return 0;
+    }
+    const char *channel = (const char *)head + LCM_SHORT_HEADER;
+    const size_t len = strnlen(channel, (size_t)n - LCM_SHORT_HEADER);
+    if (len == (size_t)n - LCM_SHORT_HEADER || len == 0 || len >= VL_LCM_RX_CHANNEL_MAX) {
+        return 0;
+    }
+    memcpy(out->channel, channel, len + 1);
+    const size_t payload = (size_t)n - LCM_SHORT_HEADER - len - 1;
+    out->size = payload < VL_LCM_RX_PEEK_MAX ? payload : VL_LCM_RX_PEEK_MAX;
+    memcpy(out->payload, head + LCM_SHORT_HEADER + len + 1, out->size);
+    return 1;
+}
+
 void vl_lcm_rx_close(vl_lcm_rx_t *rx)
 {
     if (rx->fd >= 0) {

@@ -30,6 +30,7 @@ extern "C" {
 #define VL_LCM_RX_MAX_SUBSCRIPTIONS 8 /**< channels one receiver dispatches */
 #define VL_LCM_RX_CHANNEL_MAX 64      /**< bytes of a channel name, with its terminating NUL */
 #define VL_LCM_RX_PACKET_MAX 65536    /**< bytes of the largest datagram */
+#define VL_LCM_RX_PEEK_MAX 64         /**< payload bytes vl_lcm_rx_peek shows of the next message */
 
 /** One subscription: an exact channel name and the handler LCM would call for it. */
 typedef struct {
@@ -38,6 +39,13 @@ typedef struct {
     void *user;
     lcm_subscription_t *lcm_sub; /**< through liblcm: its subscription; else NULL */
 } vl_lcm_rx_subscription_t;
+
+/** The next message waiting, as vl_lcm_rx_peek shows it (nothing taken from the socket). */
+typedef struct {
+    char channel[VL_LCM_RX_CHANNEL_MAX];
+    uint8_t payload[VL_LCM_RX_PEEK_MAX]; /**< the payload's first bytes */
+    size_t size;                         /**< bytes of payload shown: min(payload size, VL_LCM_RX_PEEK_MAX) */
+} vl_lcm_rx_peek_t;
 
 /** A receiver. Caller-owned (about 64 KiB: its packet buffer); no allocation after open. */
 typedef struct {
@@ -87,6 +95,17 @@ int vl_lcm_rx_fd(const vl_lcm_rx_t *rx);
  * @return the messages handed to handlers (0: none waiting), or -1 on a socket error (errno set)
  */
 int vl_lcm_rx_poll(vl_lcm_rx_t *rx, int max);
+
+/**
+ * Looks at the next datagram waiting on the socket without taking it (the next vl_lcm_rx_poll
+ * still hands it on): a program can decide what to do with the current message's outputs knowing
+ * what comes next. Never blocks.
+ * @return 1 the next datagram is an LCM message that fits one datagram: its channel and first
+ *         payload bytes in @p out; 0 nothing waiting, or the next datagram is something else
+ *         (a fragment, not LCM); -1 through liblcm (its queue cannot be looked into) or a socket
+ *         error
+ */
+int vl_lcm_rx_peek(vl_lcm_rx_t *rx, vl_lcm_rx_peek_t *out);
 
 /** Closes the socket, or unsubscribes from liblcm (a closed or never opened receiver is fine). */
 void vl_lcm_rx_close(vl_lcm_rx_t *rx);

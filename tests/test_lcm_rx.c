@@ -196,6 +196,51 @@ void test_every_subscription_of_a_channel_is_called_until_unsubscribed(void)
     TEST_ASSERT_EQUAL_INT(VL_LCM_RX_MAX_SUBSCRIPTIONS - 1, added);
 }
 
+/* Waits up to a second for a datagram on the receiver's socket; 1 when one is there. */
+static int readable(void)
+{
+    struct pollfd p = {vl_lcm_rx_fd(&g_rx), POLLIN, 0};
+    return poll(&p, 1, 1000) == 1;
+}
+
+void test_peek_shows_the_next_message_and_leaves_it_for_poll(void)
+{
+    open_both();
+    received_t a;
+    memset(&a, 0, sizeof(a));
+    TEST_ASSERT_EQUAL_INT(0, vl_lcm_rx_subscribe(&g_rx, "VL_TEST_A", on_message, &a));
+    vl_lcm_rx_peek_t next;
+    TEST_ASSERT_EQUAL_INT(0, vl_lcm_rx_peek(&g_rx, &next)); /* nothing waiting: no blocking */
+    uint8_t payload[200];
+    for (int i = 0; i < 200; ++i) {
+        payload[i] = (uint8_t)(i * 5 + 1);
+    }
+    TEST_ASSERT_EQUAL_INT(0, lcm_publish(g_lcm, "VL_TEST_A", payload, sizeof(payload)));
+    TEST_ASSERT_EQUAL_INT(0, lcm_publish(g_lcm, "VL_TEST_B", "xy", 2));
+    TEST_ASSERT_TRUE(readable());
+    for (int k = 0; k < 2; ++k) { /* looking twice takes nothing */
+        memset(&next, 0, sizeof(next));
+        TEST_ASSERT_EQUAL_INT(1, vl_lcm_rx_peek(&g_rx, &next));
+        TEST_ASSERT_EQUAL_STRING("VL_TEST_A", next.channel);
+        TEST_ASSERT_EQUAL_UINT32(VL_LCM_RX_PEEK_MAX, (uint32_t)next.size); /* the first bytes only */
+        TEST_ASSERT_EQUAL_MEMORY(payload, next.payload, VL_LCM_RX_PEEK_MAX);
+    }
+    TEST_ASSERT_EQUAL_INT(1, vl_lcm_rx_poll(&g_rx, 1)); /* the message peeked, whole */
+    TEST_ASSERT_EQUAL_INT(1, a.calls);
+    TEST_ASSERT_EQUAL_UINT32(sizeof(payload), a.size);
+    TEST_ASSERT_EQUAL_MEMORY(payload, a.data, sizeof(payload));
+    TEST_ASSERT_EQUAL_INT(1, vl_lcm_rx_peek(&g_rx, &next)); /* then the one behind it */
+    TEST_ASSERT_EQUAL_STRING("VL_TEST_B", next.channel);
+    TEST_ASSERT_EQUAL_UINT32(2, (uint32_t)next.size);
+    TEST_ASSERT_EQUAL_MEMORY("xy", next.payload, 2);
+    TEST_ASSERT_EQUAL_INT(0, vl_lcm_rx_poll(&g_rx, 64)); /* not subscribed: counted, not handed on */
+    TEST_ASSERT_EQUAL_INT(0, vl_lcm_rx_peek(&g_rx, &next));
+    /* Through liblcm nothing can be looked at. */
+    vl_lcm_rx_close(&g_rx);
+    vl_lcm_rx_use_lcm(&g_rx, g_lcm);
+    TEST_ASSERT_EQUAL_INT(-1, vl_lcm_rx_peek(&g_rx, &next));
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -204,5 +249,6 @@ int main(void)
     RUN_TEST(test_a_message_from_liblcm_reaches_its_handler_whole);
     RUN_TEST(test_fragments_and_foreign_datagrams_are_counted_not_handed_over);
     RUN_TEST(test_every_subscription_of_a_channel_is_called_until_unsubscribed);
+    RUN_TEST(test_peek_shows_the_next_message_and_leaves_it_for_poll);
     return UNITY_END();
 }

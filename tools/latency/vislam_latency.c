@@ -45,6 +45,7 @@
 #include "vl_log_reader.h"
 #include "vl_rt.h"
 #include "vl_session.h"
+#include "vl_warm.h"
 #include "vl_worker.h"
 
 #define EXIT_INCOMPLETE 1
@@ -77,6 +78,9 @@ typedef struct {
     int lcm_receive_thread;      /* end to end: both receive through liblcm's thread */
     const char *cpu_dma_latency; /* the PM QoS request (us) in-process and vislamd's, as given; NULL: none */
     int cpu_dma_latency_us;      /* the same, parsed; -1: none */
+    const char *warm_us;         /* the predictive wake (us) in-process and vislamd's --warm-us, as given */
+    long warm_us_n;              /* the same, parsed; 0: off */
+    int supersede_imu_poses;     /* end to end: vislamd's --supersede-imu-poses */
     int quiet;
     vl_worker_options_t worker;
 } options_t;
@@ -100,56 +104,68 @@ static options_t opt;
 static char self_dir[PATH_LEN];
 /* The in-process pass's worker (--threads 2), started once, after this thread's CPU and priority. */
 static vl_worker_t g_worker;
+/* --warm-us in-process: the periods warmed and what it cost (vl_warm_t's counts; no prediction
+   here, the log gives each input's time). */
+static vl_warm_t g_warm;
+static uint64_t g_warm_sink; /* what vl_warm_touch read, kept so that the reads stay */
 
 static void usage(FILE *f)
 {
-    fprintf(f, "usage: vislam-latency LOG [options]\n"
-               "Measures vislam's step latency on this machine: in-process (the core through vl_session) and\n"
-               "end to end through vislamd over LCM (and the LCM overhead: end to end less vislamd's own\n"
-               "step, per frame), beside the machine's own scheduling-jitter floor and the core's own count\n"
-               "of each step's work.\n"
-               "\n"
-               "  --passes N          run the log N times, a fresh estimator (and daemon) each pass (default 1)\n"
-               "  --rate sensor|max   feed inputs at their recorded times (default) or as fast as possible\n"
-               "  --cpu K             the estimator's (and vislamd's) CPU (default 1, or 0 on one CPU)\n"
-               "  --other-cpu J       the publisher's and --load's CPU (default: the next CPU)\n"
-               "  --rt-priority N     SCHED_FIFO priority 1..99 for the estimator, vislamd and the publisher\n"
-               "                      (the jitter probe runs at N+1); a refusal is a warning\n"
-               "  --load              a busy-loop and memory-churn child on the other CPU while measuring\n"
-               "  --threads N         1 (default) or 2: the update shared with a worker thread, in-process and\n"
-               "                      in vislamd (the worker at --rt-priority too)\n"
-               "  --worker-cpu K      the worker's CPU (default: --other-cpu, beside the publisher and --load)\n"
-               "  --no-e2e            in-process only (no vislamd, no LCM)\n"
-               "  --lcm-url URL       LCM provider of the end-to-end pass (default: $LCM_DEFAULT_URL, else\n"
-               "                      LCM's default); udpm needs a multicast route (see the README)\n"
-               "  --timeout-ms N      end to end: how long to wait for a pose (default 2000)\n"
-               "  --busy-poll-us N    end to end: vislamd and the replay spin on their sockets up to N us for\n"
-               "                      the next message before sleeping (their --busy-poll-us)\n"
-               "  --cpu-dma-latency US  hold /dev/cpu_dma_latency at US us during the in-process pass and\n"
-               "                      pass it to vislamd: no CPU enters an idle state slower to leave\n"
-               "                      (system-wide, costs power; a refusal is a warning)\n"
-               "  --lcm-receive-thread  end to end: both receive through liblcm's receive thread (their\n"
-               "                      --lcm-receive-thread), not on the socket in their own loop\n"
-               "  --config FILE       INI configuration (the estimator's and vislamd's)\n"
-               "  --budget-us N       step budget for the overrun count (default: the log's frame period)\n"
-               "  --cyclictest        also run cyclictest (if installed) on every CPU while measuring\n"
-               "  --callgrind         re-run one in-process pass under valgrind --tool=callgrind and report\n"
-               "                      the instructions per vl_update (needs a build valgrind can run:\n"
-               "                      -DVL_NATIVE=OFF where the CPU has AVX-512)\n"
-               "  --no-probe          no jitter probe\n"
-               "  --json FILE         the figures as JSON (with the samples the plot draws)\n"
-               "  --plot FILE.png     CDFs of the step and end-to-end latency and the LCM overhead with the\n"
-               "                      jitter floor\n"
-               "                      (Python: $VISLAM_PYTHON, else the project's .venv, else python3;\n"
-               "                      vislam_tools from $VISLAM_TOOLS_DIR, else the source tree's tools/)\n"
-               "  --work-dir DIR      where the end-to-end pass keeps vislamd's and the replay's outputs\n"
-               "                      (default: a new directory under $TMPDIR, removed at the end)\n"
-               "  --quiet             only the summary\n"
-               "  --version           print the version and exit\n"
-               "  --help              this text\n"
-               "\n"
-               "Exit status: 0 measured; 1 the end-to-end pass got no (or not every) pose back, or a helper\n"
-               "failed; 2 usage error or unreadable log.\n");
+    fprintf(f,
+            "usage: vislam-latency LOG [options]\n"
+            "Measures vislam's step latency on this machine: in-process (the core through vl_session) and\n"
+            "end to end through vislamd over LCM (and the LCM overhead: end to end less vislamd's own\n"
+            "step, per frame), beside the machine's own scheduling-jitter floor and the core's own count\n"
+            "of each step's work.\n"
+            "\n"
+            "  --passes N          run the log N times, a fresh estimator (and daemon) each pass (default 1)\n"
+            "  --rate sensor|max   feed inputs at their recorded times (default) or as fast as possible\n"
+            "  --cpu K             the estimator's (and vislamd's) CPU (default 1, or 0 on one CPU)\n"
+            "  --other-cpu J       the publisher's and --load's CPU (default: the next CPU)\n"
+            "  --rt-priority N     SCHED_FIFO priority 1..99 for the estimator, vislamd and the publisher\n"
+            "                      (the jitter probe runs at N+1); a refusal is a warning\n"
+            "  --load              a busy-loop and memory-churn child on the other CPU while measuring\n"
+            "  --threads N         1 (default) or 2: the update shared with a worker thread, in-process and\n"
+            "                      in vislamd (the worker at --rt-priority too)\n"
+            "  --worker-cpu K      the worker's CPU (default: --other-cpu, beside the publisher and --load)\n"
+            "  --no-e2e            in-process only (no vislamd, no LCM)\n"
+            "  --lcm-url URL       LCM provider of the end-to-end pass (default: $LCM_DEFAULT_URL, else\n"
+            "                      LCM's default); udpm needs a multicast route (see the README)\n"
+            "  --timeout-ms N      end to end: how long to wait for a pose (default 2000)\n"
+            "  --busy-poll-us N    end to end: vislamd and the replay spin on their sockets up to N us for\n"
+            "                      the next message before sleeping (their --busy-poll-us)\n"
+            "  --cpu-dma-latency US  hold /dev/cpu_dma_latency at US us during the in-process pass and\n"
+            "                      pass it to vislamd: no CPU enters an idle state slower to leave\n"
+            "                      (system-wide, costs power; a refusal is a warning)\n"
+            "  --warm-us N         the predictive wake: in-process, sleep until N us before an input due\n"
+            "                      after an idle gap, read the estimator's memory and spin until it is\n"
+            "                      due; end to end, vislamd's --warm-us N (0..%d; costs up to 2N us of\n"
+            "                      CPU a frame period)\n"
+            "  --supersede-imu-poses  end to end: vislamd's --supersede-imu-poses (an IMU pose at a\n"
+            "                      frame's time is not sent; the frame's pose is)\n"
+            "  --lcm-receive-thread  end to end: both receive through liblcm's receive thread (their\n"
+            "                      --lcm-receive-thread), not on the socket in their own loop\n"
+            "  --config FILE       INI configuration (the estimator's and vislamd's)\n"
+            "  --budget-us N       step budget for the overrun count (default: the log's frame period)\n"
+            "  --cyclictest        also run cyclictest (if installed) on every CPU while measuring\n"
+            "  --callgrind         re-run one in-process pass under valgrind --tool=callgrind and report\n"
+            "                      the instructions per vl_update (needs a build valgrind can run:\n"
+            "                      -DVL_NATIVE=OFF where the CPU has AVX-512)\n"
+            "  --no-probe          no jitter probe\n"
+            "  --json FILE         the figures as JSON (with the samples the plot draws)\n"
+            "  --plot FILE.png     CDFs of the step and end-to-end latency and the LCM overhead with the\n"
+            "                      jitter floor\n"
+            "                      (Python: $VISLAM_PYTHON, else the project's .venv, else python3;\n"
+            "                      vislam_tools from $VISLAM_TOOLS_DIR, else the source tree's tools/)\n"
+            "  --work-dir DIR      where the end-to-end pass keeps vislamd's and the replay's outputs\n"
+            "                      (default: a new directory under $TMPDIR, removed at the end)\n"
+            "  --quiet             only the summary\n"
+            "  --version           print the version and exit\n"
+            "  --help              this text\n"
+            "\n"
+            "Exit status: 0 measured; 1 the end-to-end pass got no (or not every) pose back, or a helper\n"
+            "failed; 2 usage error or unreadable log.\n",
+            VL_WARM_MAX_US);
 }
 
 static int parse_long(const char *name, const char *v, long lo, long hi, long *out)
@@ -202,6 +218,8 @@ static int parse_args(int argc, char **argv, options_t *o)
             o->probe = 0;
         } else if (strcmp(a, "--lcm-receive-thread") == 0) {
             o->lcm_receive_thread = 1;
+        } else if (strcmp(a, "--supersede-imu-poses") == 0) {
+            o->supersede_imu_poses = 1;
         } else if (strcmp(a, "--quiet") == 0) {
             o->quiet = 1;
         } else if (a[0] != '-' || a[1] == '\0') {
@@ -257,6 +275,11 @@ static int parse_args(int argc, char **argv, options_t *o)
                 }
                 o->cpu_dma_latency = v;
                 o->cpu_dma_latency_us = (int)n;
+            } else if (strcmp(a, "--warm-us") == 0) {
+                if (parse_long(a, v, 0, VL_WARM_MAX_US, &o->warm_us_n) != 0) {
+                    return -1;
+                }
+                o->warm_us = v;
             } else if (strcmp(a, "--config") == 0) {
                 o->config_path = v;
             } else if (strcmp(a, "--json") == 0) {
@@ -513,6 +536,21 @@ static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double
             const vl_log_event_t *ev = &lg->events[i];
             if (!opt.rate_max) {
                 const int64_t deadline = start + (ev->log_utime - first);
+                if (opt.warm_us_n > 0 && deadline - vl_clock_monotonic_us() > opt.warm_us_n) {
+                    /* An idle gap before this input: wake warm_us early, read the state, spin. */
+                    while (vl_clock_sleep_until_us(deadline - opt.warm_us_n) != 0) {
+                    }
+                    const int64_t w0 = vl_clock_monotonic_us();
+                    g_warm_sink += vl_warm_touch(est, sizeof(*est));
+                    const int64_t w1 = vl_clock_monotonic_us();
+                    int64_t w2 = w1;
+                    while (w2 < deadline) {
+                        w2 = vl_clock_monotonic_us();
+                    }
+                    g_warm.windows++;
+                    g_warm.touch_us += (uint64_t)(w1 - w0);
+                    g_warm.spin_us += (uint64_t)(w2 - w1);
+                }
                 while (vl_clock_sleep_until_us(deadline) != 0) {
                 }
             }
@@ -912,6 +950,13 @@ static void run_e2e(const char *dir, e2e_t *e)
             dargv[k++] = "--cpu-dma-latency";
             dargv[k++] = opt.cpu_dma_latency;
         }
+        if (opt.warm_us != NULL) {
+            dargv[k++] = "--warm-us";
+            dargv[k++] = opt.warm_us;
+        }
+        if (opt.supersede_imu_poses) {
+            dargv[k++] = "--supersede-imu-poses";
+        }
         if (opt.worker.threads > 1) {
             dargv[k++] = "--threads";
             dargv[k++] = "2";
@@ -1178,6 +1223,10 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
     } else {
         fprintf(f, "  \"cpu_dma_latency_us\": null,\n  \"cpu_dma_latency_held\": false,\n");
     }
+    fprintf(f,
+            "  \"warm_us\": %ld,\n  \"warm\": {\"periods\": %" PRIu64 ", \"touch_us\": %" PRIu64
+            ", \"spin_us\": %" PRIu64 "},\n  \"supersede_imu_poses\": %s,\n",
+            opt.warm_us_n, g_warm.windows, g_warm.touch_us, g_warm.spin_us, opt.supersede_imu_poses ? "true" : "false");
     fprintf(f, "  \"threads\": %d,\n  \"worker_cpu\": ", res->worker_running ? 2 : 1);
     fprintf(f, res->worker_running ? "%d" : "null", opt.worker.cpu);
     fprintf(f, ",\n  \"worker_share\": %.4f,\n  \"worker_loops\": %" PRIu64 ",\n", res->worker_share,
@@ -1503,6 +1552,15 @@ int main(int argc, char **argv)
     if (opt.cpu_dma_latency_us >= 0) {
         fprintf(stderr, "  cpu_dma_latency: %d us, %s in-process\n", opt.cpu_dma_latency_us,
                 res.cpu_latency_held ? "held" : "refused");
+    }
+    if (opt.warm_us_n > 0) {
+        fprintf(stderr,
+                "  warm: %ld us before each input after an idle gap, in-process: %" PRIu64
+                " periods, reading the state %.0f us"
+                " and spinning %.0f us a period\n",
+                opt.warm_us_n, g_warm.windows,
+                g_warm.windows > 0 ? (double)g_warm.touch_us / (double)g_warm.windows : 0.0,
+                g_warm.windows > 0 ? (double)g_warm.spin_us / (double)g_warm.windows : 0.0);
     }
     if (res.worker_running) {
         fprintf(stderr, "  threads: 2 (worker on CPU %d ran %.1f%% of the update's blocks in-process)\n",

@@ -52,6 +52,7 @@
 #include "vl_session.h"
 #include "vl_signal.h"
 #include "vl_trajectory_file.h"
+#include "vl_warm.h"
 
 #include "bot_core_pose_t.h"
 #include "vislam_calibration_t.h"
@@ -76,6 +77,7 @@
 #define BUSY_POLL_MAX_US 1000000
 #define ENCODE_BUF 1024
 #define STEP_SAMPLES_MAX 65536 /* --step-samples: frames kept (3.5 MiB; 1.8 h at 10 Hz), later ones counted */
+#define SUPERSEDE_WAIT_US 1000 /* --supersede-imu-poses: how long an IMU pose at a frame's due time waits for it */
 #define STEP_SAMPLES_BUF 65536 /* its stdio buffer, given at start-up so that writing it does not allocate */
 
 typedef struct {
@@ -85,12 +87,14 @@ typedef struct {
     const char *step_samples_path;
     const char *prefix;
     const char *channel[6];
-    long budget_us;         /* 0: automatic */
-    long busy_poll_us;      /* direct receive: spin on the socket this long before sleeping; 0: never */
-    int lcm_receive_thread; /* receive through liblcm's thread and pipe, not on the socket directly */
-    int rt_priority;        /* 0: leave the scheduler alone */
-    int cpu;                /* -1: no affinity */
-    int cpu_dma_latency_us; /* PM QoS request held from start-up to exit; -1: none */
+    long budget_us;          /* 0: automatic */
+    long busy_poll_us;       /* direct receive: spin on the socket this long before sleeping; 0: never */
+    int lcm_receive_thread;  /* receive through liblcm's thread and pipe, not on the socket directly */
+    int rt_priority;         /* 0: leave the scheduler alone */
+    int cpu;                 /* -1: no affinity */
+    int cpu_dma_latency_us;  /* PM QoS request held from start-up to exit; -1: none */
+    int supersede_imu_poses; /* an IMU sample's pose is held for a frame of its time or later, dropped when it comes */
+    long warm_us;            /* the predictive wake: warm this long before a frame is due; 0: off */
     int no_mlock;
     int quiet;
     int print_config;
@@ -125,6 +129,9 @@ typedef struct {
 /* The daemon's own counts; the inputs' are the session's (vl_session_counters). */
 typedef struct {
     uint64_t bot_poses_out, status_out, publish_errors;
+    /* --supersede-imu-poses: IMU poses not sent (a frame's pose of the same or a later time
+       followed), and those held for a frame whose pose did not follow in time, sent late */
+    uint64_t imu_poses_superseded, imu_poses_sent_late;
     uint64_t trajectory_errors;
     /* timing */
     uint64_t steps, overruns;
@@ -148,6 +155,13 @@ typedef struct {
     vl_log_event_t ev;
 
     /* outputs */
+    struct {
+        int have;            /* an IMU pose held for the frame of its time */
+        int64_t deadline_us; /* CLOCK_MONOTONIC: sent then if no frame came; 0: the frame is already queued */
+        int64_t utime;
+        uint64_t sequence;
+        vl_pose_t pose;
+    } held;
     vislam_pose_t pose_msg;
     bot_core_pose_t bot_msg;
     vislam_status_t status_msg;
@@ -172,6 +186,9 @@ typedef struct {
     int64_t last_handler_ns;     /* CLOCK_REALTIME when the last input's handler was called, ns */
     int64_t last_sink_ns;        /* the last input's sink_ns */
     int64_t pose_sent_ns;        /* CLOCK_REALTIME when the current step's VISLAM_POSE went to lcm_publish, ns */
+    int64_t handler_mono_us;     /* CLOCK_MONOTONIC when the current input's handler was called, us */
+    vl_warm_t warm;              /* --warm-us */
+    uint64_t warm_sink;          /* what vl_warm_touch read, kept so that the reads stay */
     step_sample_t *step_samples; /* --step-samples: STEP_SAMPLES_MAX, allocated at start-up */
     size_t num_step_samples;
     uint64_t step_samples_dropped;
@@ -220,8 +237,17 @@ static void usage(FILE *f)
             "  --cpu K                 pin to CPU K (a refusal is a warning)\n"
             "  --cpu-dma-latency US    hold /dev/cpu_dma_latency at US us until exit: no CPU enters an\n"
             "                          idle state slower to leave (system-wide, costs power; a refusal\n"
-            "                          is a warning)\n",
-            STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US);
+            "                          is a warning)\n"
+            "  --warm-us N             the predictive wake (0..%d, default 0 = off): sleep until N us before\n"
+            "                          the next frame is due (the last one's arrival plus the frame period),\n"
+            "                          read the estimator's memory, then poll for it without sleeping until\n"
+            "                          it comes or N us after it was due; costs up to 2N us of CPU a frame\n"
+            "  --supersede-imu-poses   an IMU sample's pose is held when the next message waiting is a frame\n"
+            "                          of the same or a later time, or a frame is due at its time (then up to\n"
+            "                          %d us), and not sent when that frame's pose follows: the frame does not\n"
+            "                          wait for that publishing. Counted in the exit summary; sent late when\n"
+            "                          no frame pose follows in time\n",
+            STEP_SAMPLES_MAX, INTERVAL_WINDOW, DEFAULT_BUDGET_US, VL_WARM_MAX_US, SUPERSEDE_WAIT_US);
     fputs(VL_WORKER_USAGE("       "), f);
     fprintf(f,
             "  --no-mlock              do not lock memory (default: mlockall and %d KiB stack pre-fault)\n"
@@ -267,9 +293,9 @@ static int parse_long(const char *opt, const char *s, long lo, long hi, long *ou
 
 static int takes_value(const char *a)
 {
-    static const char *const names[] = {"--config",         "--lcm-url",        "--trajectory",  "--step-samples",
-                                        "--channel-prefix", "--budget-us",      "--rt-priority", "--cpu",
-                                        "--busy-poll-us",   "--cpu-dma-latency"};
+    static const char *const names[] = {"--config",         "--lcm-url",         "--trajectory",  "--step-samples",
+                                        "--channel-prefix", "--budget-us",       "--rt-priority", "--cpu",
+                                        "--busy-poll-us",   "--cpu-dma-latency", "--warm-us"};
     for (size_t i = 0; i < sizeof(names) / sizeof(names[0]); ++i) {
         if (strcmp(a, names[i]) == 0) {
             return 1;
@@ -315,6 +341,9 @@ static int parse_args(int argc, char **argv, options_t *o)
             continue;
         } else if (strcmp(a, "--print-config") == 0) {
             o->print_config = 1;
+            continue;
+        } else if (strcmp(a, "--supersede-imu-poses") == 0) {
+            o->supersede_imu_poses = 1;
             continue;
         }
         if (a[0] != '-' || a[1] != '-') {
@@ -367,6 +396,11 @@ static int parse_args(int argc, char **argv, options_t *o)
                 return -1;
             }
             o->cpu_dma_latency_us = (int)n;
+        } else if (strcmp(a, "--warm-us") == 0) {
+            if (parse_long(a, v, 0, VL_WARM_MAX_US, &n) != 0) {
+                return -1;
+            }
+            o->warm_us = n;
         } else {
             known = 0;
             for (int c = 0; c < CH_COUNT; ++c) {
@@ -523,12 +557,66 @@ static void publish_pose(daemon_t *d, vl_session_step_t step, int64_t utime, uin
     }
 }
 
-/* Session sink: publish_pose, timed so that the step's own time can leave it out. */
+/* An int64 of LCM's encoding (big-endian) at p. */
+static int64_t be64(const uint8_t *p)
+{
+    uint64_t v = 0;
+    for (int i = 0; i < 8; ++i) {
+        v = (v << 8) | p[i];
+    }
+    return (int64_t)v;
+}
+
+/* --supersede-imu-poses: 1 when the next message waiting on the socket is a frame of time
+   utime or later (its utime, the first field after LCM's 8-byte type fingerprint). */
+static int frame_waiting(daemon_t *d, int64_t utime)
+{
+    vl_lcm_rx_peek_t next;
+    return vl_lcm_rx_peek(&d->rx, &next) == 1 && strcmp(next.channel, d->channel[CH_FEATURES]) == 0 &&
+           next.size >= 16 && be64(next.payload + 8) >= utime;
+}
+
+/* The held IMU pose, sent after all: its frame gave no pose, did not come in time, or another pose came first. */
+static void publish_held(daemon_t *d)
+{
+    d->held.have = 0;
+    d->n.imu_poses_sent_late++;
+    publish_pose(d, VL_SESSION_STEP_PROPAGATE, d->held.utime, d->held.sequence, &d->held.pose);
+}
+
+/*
+ * Session sink: publish_pose, timed so that the step's own time can leave it out. With
+ * --supersede-imu-poses an IMU pose is held when a frame of the same or a later time waits behind
+ * its sample on the socket, or when a frame is due at its time (vl_warm_frame_due: the sample
+ * came first, its frame is on the way) for up to SUPERSEDE_WAIT_US; it is dropped (counted) when
+ * that frame's pose comes: the frame's pose is the estimate at that time with the frame's
+ * information too, and the frame need not wait for two sends. Any other pose first, no pose from
+ * the next input, or no frame in time, and the held one is sent (counted as late), so no pose is
+ * lost without a newer one in its place and the sequence numbers on the wire still increase.
+ */
 static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t sequence, const vl_pose_t *pose)
 {
     daemon_t *d = (daemon_t *)user;
     const int64_t t0 = vl_clock_monotonic_ns();
-    publish_pose(d, step, utime, sequence, pose);
+    if (d->held.have) {
+        if (step == VL_SESSION_STEP_UPDATE && utime >= d->held.utime) {
+            d->held.have = 0;
+            d->n.imu_poses_superseded++;
+        } else {
+            publish_held(d);
+        }
+    }
+    const int queued = step == VL_SESSION_STEP_PROPAGATE && d->opt.supersede_imu_poses && frame_waiting(d, utime);
+    if (queued ||
+        (step == VL_SESSION_STEP_PROPAGATE && d->opt.supersede_imu_poses && vl_warm_frame_due(&d->warm, utime))) {
+        d->held.have = 1;
+        d->held.deadline_us = queued ? 0 : vl_clock_monotonic_us() + SUPERSEDE_WAIT_US;
+        d->held.utime = utime;
+        d->held.sequence = sequence;
+        d->held.pose = *pose;
+    } else {
+        publish_pose(d, step, utime, sequence, pose);
+    }
     d->sink_ns += vl_clock_monotonic_ns() - t0;
 }
 
@@ -622,6 +710,9 @@ static void keep_step_sample(daemon_t *d, const step_sample_t *s)
 static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_buf_t *rbuf, const char *channel)
 {
     step_sample_t sample;
+    const int held_before = d->held.have;
+    const uint64_t held_sequence = d->held.sequence;
+    d->handler_mono_us = vl_clock_monotonic_us();
     sample.handler_ns = vl_clock_realtime_ns();
     sample.free_ns = d->free_ns;
     sample.prev_handler_ns = d->last_handler_ns;
@@ -641,6 +732,9 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
     const int64_t s0 = vl_clock_monotonic_ns();
     const vl_session_step_t step = vl_session_input(&d->session, ev, &status);
     const int64_t step_ns = vl_clock_monotonic_ns() - s0 - d->sink_ns;
+    if (held_before && d->held.have && d->held.sequence == held_sequence) {
+        publish_held(d); /* the input behind the held pose gave no pose (a pose it held itself stays) */
+    }
     d->last_handler_ns = sample.handler_ns;
     d->last_sink_ns = d->sink_ns;
     if (step == VL_SESSION_STEP_NONE) {
@@ -656,6 +750,9 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
     }
     if (step == VL_SESSION_STEP_PROPAGATE && status >= 0) {
         note_imu_interval(d, utime);
+    }
+    if (step == VL_SESSION_STEP_UPDATE && status >= 0) {
+        vl_warm_note_frame(&d->warm, utime, d->handler_mono_us);
     }
     finish_step(d, step == VL_SESSION_STEP_UPDATE ? STEP_UPDATE : STEP_PROPAGATE, t0, utime);
     d->free_ns = vl_clock_realtime_ns();
@@ -709,6 +806,13 @@ static int open_receive(daemon_t *d)
                         "--lcm-receive-thread); not polling\n");
         d->opt.busy_poll_us = 0;
     }
+    if (!d->direct && d->opt.warm_us > 0) {
+        /* Spinning at the loop's priority would starve liblcm's receive thread on the same CPU. */
+        fprintf(stderr, "vislamd: warning: --warm-us needs the direct receiver (a udpm:// URL without "
+                        "--lcm-receive-thread); not warming\n");
+        d->opt.warm_us = 0;
+        vl_warm_init(&d->warm, 0);
+    }
     if (vl_lcm_rx_subscribe(&d->rx, d->channel[CH_CALIB], on_calibration_msg, d) != 0 ||
         vl_lcm_rx_subscribe(&d->rx, d->channel[CH_IMU], on_imu_msg, d) != 0 ||
         vl_lcm_rx_subscribe(&d->rx, d->channel[CH_FEATURES], on_features_msg, d) != 0) {
@@ -730,25 +834,66 @@ static int receive(daemon_t *d)
 }
 
 /*
- * --busy-poll-us: reads the socket without sleeping until a message is handled or until_us
- * (CLOCK_MONOTONIC) passes; 1 when something was handled. SIGINT and SIGTERM stay blocked while
- * it spins, so a pending one ends the spin and the loop's wait takes it.
+ * --busy-poll-us and --warm-us: reads the socket without sleeping until a message is handled or
+ * until_us (CLOCK_MONOTONIC) passes; 1 when something was handled. SIGINT and SIGTERM stay blocked
+ * while it spins, so a pending one ends the spin and the loop's wait takes it. *spun_us (may be
+ * NULL): the time spent polling, up to the last poll that found nothing.
  */
-static int busy_poll(daemon_t *d, int64_t until_us)
+static int busy_poll(daemon_t *d, int64_t until_us, int64_t *spun_us)
 {
     sigset_t pending;
+    const int64_t start = vl_clock_monotonic_us();
+    int64_t last_empty = start;
+    int got = 0;
     for (;;) {
         if (sigpending(&pending) == 0 && (sigismember(&pending, SIGINT) == 1 || sigismember(&pending, SIGTERM) == 1)) {
-            return 0;
+            break;
         }
         const int n = vl_lcm_rx_poll(&d->rx, RX_BATCH);
         if (n != 0) {
-            return n > 0;
+            got = n > 0;
+            break;
         }
-        if (vl_clock_monotonic_us() >= until_us) {
-            return 0;
+        last_empty = vl_clock_monotonic_us();
+        if (last_empty >= until_us) {
+            break;
         }
     }
+    if (spun_us != NULL) {
+        *spun_us = last_empty - start;
+    }
+    return got;
+}
+
+/*
+ * --warm-us: in the window around the next frame's due time, the estimator's memory read once and
+ * the socket polled without sleeping (up to until_us); outside it, *wake_us brought forward to the
+ * window's start. 1 when a message was handled while polling.
+ */
+static int warm_for_frame(daemon_t *d, int64_t now, int64_t *wake_us)
+{
+    int64_t from = 0, until = 0;
+    if (!d->direct || !vl_warm_window(&d->warm, now, &from, &until)) {
+        return 0;
+    }
+    if (now < from) {
+        if (from < *wake_us) {
+            *wake_us = from;
+        }
+        return 0;
+    }
+    if (d->warm.warmed_for != from) {
+        d->warm.warmed_for = from;
+        d->warm.windows++;
+        const int64_t t0 = vl_clock_monotonic_us();
+        d->warm_sink += vl_warm_touch(&g_est, sizeof(g_est));
+        d->warm.touch_us += (uint64_t)(vl_clock_monotonic_us() - t0);
+    }
+    int64_t spun = 0;
+    const int got = busy_poll(d, until < *wake_us ? until : *wake_us, &spun);
+    d->warm.spin_us += (uint64_t)spun;
+    d->warm.inputs_in_spin += (uint64_t)got;
+    return got;
 }
 
 /*
@@ -958,6 +1103,21 @@ static void print_summary(const daemon_t *d)
             ", frames refused for IMU silence %" PRIu64 ", poses withheld %" PRIu64 "\n",
             n->time_refused, c->time_jumps, c->timeline_changes, c->divergence_resets, c->imu_implausible,
             c->observations_implausible, c->frames_imu_silent, n->poses_withheld);
+    if (d->opt.supersede_imu_poses) {
+        fprintf(stderr,
+                "  superseded IMU poses: %" PRIu64 " not sent (a frame's pose of the same or a later time followed),"
+                " %" PRIu64 " held and sent late (no frame pose followed in time)\n",
+                d->n.imu_poses_superseded, d->n.imu_poses_sent_late);
+    }
+    if (d->opt.warm_us > 0) {
+        const vl_warm_t *w = &d->warm;
+        fprintf(stderr,
+                "  warm (--warm-us %ld): %" PRIu64 " frame periods, frame period %" PRId64
+                " us; reading the state %" PRIu64 " us, polling %" PRIu64 " us in all (%.0f us a period); %" PRIu64
+                " inputs came while polling\n",
+                d->opt.warm_us, w->windows, w->period_us, w->touch_us, w->spin_us,
+                w->windows > 0 ? (double)(w->touch_us + w->spin_us) / (double)w->windows : 0.0, w->inputs_in_spin);
+    }
     fprintf(stderr, "  budget %" PRId64 " us (%s): %" PRIu64 " overrun(s) in %" PRIu64 " steps\n", d->budget_us,
             d->opt.budget_us > 0 ? "--budget-us" : "sensor period", d->n.overruns, d->n.steps);
     fprintf(stderr, "  step latency (CLOCK_MONOTONIC, decode to publish):\n");
@@ -985,6 +1145,7 @@ int main(int argc, char **argv)
         d->watchdog_period_us = vl_notify_watchdog_period_us(&d->notify);
     }
     d->budget_us = d->opt.budget_us > 0 ? d->opt.budget_us : DEFAULT_BUDGET_US;
+    vl_warm_init(&d->warm, d->opt.warm_us);
     vl_latency_reset(&d->lat_all);
     vl_latency_reset(&d->lat_step[0]);
     vl_latency_reset(&d->lat_step[1]);
@@ -1090,12 +1251,25 @@ int main(int argc, char **argv)
                 next_status = now + STATUS_PERIOD_US; /* do not burst after a stall */
             }
         }
+        if (d->held.have && d->held.deadline_us != 0 && now >= d->held.deadline_us) {
+            publish_held(d); /* its frame did not come in time */
+        }
         int64_t wake = next_status;
         if (d->watchdog_period_us > 0 && d->next_watchdog_us < wake) {
             wake = d->next_watchdog_us;
         }
+        if (d->held.have && d->held.deadline_us != 0 && d->held.deadline_us < wake) {
+            wake = d->held.deadline_us;
+        }
+        if (warm_for_frame(d, now, &wake)) {
+            continue;
+        }
+        now = vl_clock_monotonic_us();
+        if (wake <= now) {
+            continue;
+        }
         if (d->opt.busy_poll_us > 0 &&
-            busy_poll(d, now + d->opt.busy_poll_us < wake ? now + d->opt.busy_poll_us : wake)) {
+            busy_poll(d, now + d->opt.busy_poll_us < wake ? now + d->opt.busy_poll_us : wake, NULL)) {
             continue;
         }
         const int r = vl_signal_wait_fd(fd, wake - now);
@@ -1126,6 +1300,9 @@ int main(int argc, char **argv)
         if (poll(&p, 1, 0) != 1 || !(p.revents & POLLIN) || receive(d) != 0) {
             break;
         }
+    }
+    if (d->held.have) {
+        publish_held(d); /* the frame behind it was not read */
     }
     publish_status(d);
     if (!d->opt.quiet) {
