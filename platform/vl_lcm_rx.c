@@ -14,6 +14,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "vl_bytes.h"
+
 /* LCM's wire format: a big-endian magic and sequence number, then (short messages) the channel
    name with its NUL and the payload; fragmented messages carry a longer header and magic. */
 #define LCM_MAGIC_SHORT 0x4c433032u
@@ -203,11 +205,6 @@ static int poll_lcm(vl_lcm_rx_t *rx, int max)
     return fd >= 0 ? handled : -1;
 }
 
-static uint32_t be32(const uint8_t *p)
-{
-    return ((uint32_t)p[0] << 24) | ((uint32_t)p[1] << 16) | ((uint32_t)p[2] << 8) | (uint32_t)p[3];
-}
-
 /* The kernel's receive stamp of the datagram msg, CLOCK_REALTIME us; now when there is none. */
 static int64_t receive_utime(struct msghdr *msg)
 {
@@ -230,7 +227,7 @@ static int dispatch(vl_lcm_rx_t *rx, size_t n, int64_t utime)
         rx->malformed++;
         return 0;
     }
-    const uint32_t magic = be32(rx->packet);
+    const uint32_t magic = vl_be32(rx->packet);
     if (magic == LCM_MAGIC_LONG) {
         rx->fragments++;
         return 0;
@@ -307,7 +304,7 @@ int vl_lcm_rx_peek(vl_lcm_rx_t *rx, vl_lcm_rx_peek_t *out)
     if (n < 0) {
         return (errno == EAGAIN || errno == EWOULDBLOCK) ? 0 : -1;
     }
-    if ((size_t)n < LCM_SHORT_HEADER + 1 || be32(head) != LCM_MAGIC_SHORT) {
+    if ((size_t)n < LCM_SHORT_HEADER + 1 || vl_be32(head) != LCM_MAGIC_SHORT) {
         return 0;
     }
     const char *channel = (const char *)head + LCM_SHORT_HEADER;

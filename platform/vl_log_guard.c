@@ -5,25 +5,14 @@
 
 #include <string.h>
 
+#include "vl_bytes.h"
+
 /* Bytes read at a time while searching for the next sync word. */
 #define SCAN_CHUNK 4096
 
-static uint32_t be32(const unsigned char *p)
-{
-    return ((uint32_t)p[0] << 24) | ((uint32_t)p[1] << 16) | ((uint32_t)p[2] << 8) | (uint32_t)p[3];
-}
-
-static int64_t be64(const unsigned char *p)
-{
-    const uint64_t v = ((uint64_t)be32(p) << 32) | (uint64_t)be32(p + 4);
-    int64_t s;
-    memcpy(&s, &v, sizeof(s));
-    return s;
-}
-
 static int32_t be32s(const unsigned char *p)
 {
-    const uint32_t v = be32(p);
+    const uint32_t v = vl_be32(p);
     int32_t s;
     memcpy(&s, &v, sizeof(s));
     return s;
@@ -56,13 +45,13 @@ vl_log_check_t vl_log_check_event(FILE *f, long offset, long file_size, vl_log_h
     if (!read_at(f, offset, hdr, sizeof(hdr))) {
         return VL_LOG_CHECK_IO_ERROR;
     }
-    if (be32(hdr) != VL_LOG_SYNC_WORD) {
+    if (vl_be32(hdr) != VL_LOG_SYNC_WORD) {
         return VL_LOG_CHECK_BAD_SYNC;
     }
     vl_log_header_t local;
     vl_log_header_t *hh = h != NULL ? h : &local;
-    hh->event_number = be64(hdr + 4);
-    hh->timestamp = be64(hdr + 12);
+    hh->event_number = vl_be64(hdr + 4);
+    hh->timestamp = vl_be64(hdr + 12);
     hh->channel_bytes = be32s(hdr + 20);
     hh->data_bytes = be32s(hdr + 24);
     if (hh->channel_bytes < 1 || hh->channel_bytes > VL_LOG_MAX_CHANNEL_BYTES) {

@@ -259,8 +259,8 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
 static vl_status_t update_and_adapt(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t used, uint32_t partitioned,
                                     uint32_t k)
 {
-    double prior_pose[36];
-    for (uint32_t i = 0; i < 6; ++i) {
+    double prior_pose[36]; /* read by the adaptation only */
+    for (uint32_t i = 0; i < 6 && e->cfg.adaptive_noise; ++i) {
         for (uint32_t j = 0; j < 6; ++j) {
             prior_pose[6 * i + j] = *vl_P_at(e, i, j);
         }

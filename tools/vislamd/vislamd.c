@@ -39,6 +39,7 @@
 #include <lcm/lcm.h>
 
 #include "vislam/vislam.h"
+#include "vl_bytes.h"
 #include "vl_channels.h"
 #include "vl_cli.h"
 #include "vl_clock.h"
@@ -557,23 +558,13 @@ static void publish_pose(daemon_t *d, vl_session_step_t step, int64_t utime, uin
     }
 }
 
-/* An int64 of LCM's encoding (big-endian) at p. */
-static int64_t be64(const uint8_t *p)
-{
-    uint64_t v = 0;
-    for (int i = 0; i < 8; ++i) {
-        v = (v << 8) | p[i];
-    }
-    return (int64_t)v;
-}
-
 /* --supersede-imu-poses: 1 when the next message waiting on the socket is a frame of time
    utime or later (its utime, the first field after LCM's 8-byte type fingerprint). */
 static int frame_waiting(daemon_t *d, int64_t utime)
 {
     vl_lcm_rx_peek_t next;
     return vl_lcm_rx_peek(&d->rx, &next) == 1 && strcmp(next.channel, d->channel[CH_FEATURES]) == 0 &&
-           next.size >= 16 && be64(next.payload + 8) >= utime;
+           next.size >= 16 && vl_be64(next.payload + 8) >= utime;
 }
 
 /* The held IMU pose, sent after all: its frame gave no pose, did not come in time, or another pose came first. */
@@ -606,9 +597,9 @@ static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t 
             publish_held(d);
         }
     }
-    const int queued = step == VL_SESSION_STEP_PROPAGATE && d->opt.supersede_imu_poses && frame_waiting(d, utime);
-    if (queued ||
-        (step == VL_SESSION_STEP_PROPAGATE && d->opt.supersede_imu_poses && vl_warm_frame_due(&d->warm, utime))) {
+    const int imu_pose = step == VL_SESSION_STEP_PROPAGATE && d->opt.supersede_imu_poses;
+    const int queued = imu_pose && frame_waiting(d, utime);
+    if (queued || (imu_pose && vl_warm_frame_due(&d->warm, utime))) {
         d->held.have = 1;
         d->held.deadline_us = queued ? 0 : vl_clock_monotonic_us() + SUPERSEDE_WAIT_US;
         d->held.utime = utime;
