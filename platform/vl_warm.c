@@ -1,3 +1,7 @@
+/*
+ * The predictive wake before a frame: its due time from the frames' own intervals, and the read
+ * that warms the estimator (see vl_warm.h).
+ */
 #include "vl_warm.h"
 
 #include <string.h>
