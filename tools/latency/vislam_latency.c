@@ -36,6 +36,7 @@
 #include <unistd.h>
 
 #include "vislam/vislam.h"
+#include "vl_awake.h"
 #include "vl_channels.h"
 #include "vl_cli.h"
 #include "vl_clock.h"
@@ -46,7 +47,6 @@
 #include "vl_rt.h"
 #include "vl_session.h"
 #include "vl_warm.h"
-#include "vl_awake.h"
 #include "vl_worker.h"
 
 #define EXIT_INCOMPLETE 1

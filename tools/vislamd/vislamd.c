@@ -191,9 +191,9 @@ typedef struct {
     int64_t pose_sent_ns;        /* CLOCK_REALTIME when the current step's VISLAM_POSE went to lcm_publish, ns */
     int64_t handler_mono_us;     /* CLOCK_MONOTONIC when the current input's handler was called, us */
     vl_warm_t warm;              /* --warm-us */
+    uint64_t warm_sink;          /* what vl_warm_touch read, kept so that the reads stay */
     vl_awake_t awake;            /* --keep-awake */
     int awake_started;           /* the spinner started (else refused, or not asked for) */
-    uint64_t warm_sink;          /* what vl_warm_touch read, kept so that the reads stay */
     step_sample_t *step_samples; /* --step-samples: STEP_SAMPLES_MAX, allocated at start-up */
     size_t num_step_samples;
     uint64_t step_samples_dropped;
