@@ -11,15 +11,9 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 
+#include "vl_awake.h" /* vl_cpu_relax */
 #include "vl_clock.h"
 #include "vl_rt.h"
-
-static void cpu_relax(void)
-{
-#if defined(__x86_64__) || defined(__i386__)
-    __builtin_ia32_pause();
-#endif
-}
 
 /* Sleeps while *word == expected (returns at once otherwise, or on any wake-up). */
 static void futex_wait(uint32_t *word, uint32_t expected)
@@ -114,7 +108,7 @@ static void *worker_main(void *p)
         if (g == seen) {
             const int64_t until = vl_clock_monotonic_ns() + spin_ns;
             while (g == seen && vl_clock_monotonic_ns() < until) {
-                cpu_relax();
+                vl_cpu_relax();
                 g = __atomic_load_n(&w->generation, __ATOMIC_ACQUIRE);
             }
         }
@@ -216,7 +210,7 @@ void vl_worker_parallel_for(void *ctx, vl_parallel_task_fn task, void *arg, uint
     const int64_t until = vl_clock_monotonic_ns() + VL_WORKER_READY_NS;
     while (__atomic_load_n(&w->completed, __ATOMIC_ACQUIRE) != count) {
         if (vl_clock_monotonic_ns() < until) {
-            cpu_relax();
+            vl_cpu_relax();
             continue;
         }
         __atomic_store_n(&w->caller_sleeping, 1u, __ATOMIC_SEQ_CST);

@@ -8,9 +8,10 @@
 #   passes (frames counted by vl_log_inspect), the work per step is positive with max >= p50,
 #   every IMU step does the same work, a frame with the IMU steps before it at least its own,
 #   and the jitter probe ran; no CPU latency request unless asked (cpu_dma_latency_us null).
-#   Then one pass with --cpu-dma-latency 0: it succeeds, the JSON reports 0, and it says the
-#   request was held exactly when /dev/cpu_dma_latency is writable here (refused, a warning
-#   and not a failure, otherwise).
+#   No spinner unless asked (keep_awake false). Then one pass with --cpu-dma-latency 0
+#   --keep-awake: it succeeds, the JSON reports 0, and it says the request was held exactly when
+#   /dev/cpu_dma_latency is writable here (refused, a warning and not a failure, otherwise); the
+#   JSON says keep_awake and the summary that the spinner ran on --cpu.
 # e2e: the same plus vislamd over LCM, in a private network namespace (exit 77, CTest's skip,
 #   when unshare --net is not permitted): every frame's pose came back, one sample per step; the
 #   LCM overhead has one sample per frame, 0 <= min <= p50 <= p99 <= max, and each frame's equals
@@ -20,8 +21,8 @@
 #   little unaccounted for (|other| p50 < 5 us) and none is negative (beyond the 1 us of the
 #   kernel's stamps); the overhead less its queued stage covers every frame, below the overhead.
 #   Then one pass each through liblcm's receive thread (--lcm-receive-thread),
-#   busy-polling (--busy-poll-us) and --cpu-dma-latency 0: every pose back, stages for every
-#   frame; vislamd's log says whether it held the request.
+#   busy-polling (--busy-poll-us) and --cpu-dma-latency 0 --keep-awake: every pose back, stages
+#   for every frame; vislamd's log says whether it held the request and that its spinner ran.
 # No -e: every check runs and is reported; the exit status counts the failed ones.
 set -uo pipefail
 
@@ -71,6 +72,7 @@ print("jitter_ok", int(j is not None and j["samples"] > 0 and j["max"] >= 0))
 print("e2e_returned", d["e2e_frames"]["returned"])
 print("cpu_dma_latency_us", "null" if d["cpu_dma_latency_us"] is None else d["cpu_dma_latency_us"])
 print("cpu_dma_latency_held", int(d["cpu_dma_latency_held"]))
+print("keep_awake", int(d["keep_awake"]))
 print("e2e_samples", len(d["samples"]["e2e_us"]))
 lcm = d["lcm_overhead_us"]
 print("lcm_n", 0 if lcm is None else lcm["n"])
@@ -142,7 +144,7 @@ if [ "$MODE" = e2e ]; then
     eq "$(value "$OUT/facts" stages_other_small)" 1
   check "LCM overhead stages: none negative" eq "$(value "$OUT/facts" stages_not_negative)" 1
   check "LCM overhead less queued: every frame, below the overhead" eq "$(value "$OUT/facts" transport_ok)" 1
-  for variant in --lcm-receive-thread "--busy-poll-us 2000" "--cpu-dma-latency 0"; do
+  for variant in --lcm-receive-thread "--busy-poll-us 2000" "--cpu-dma-latency 0 --keep-awake"; do
     # shellcheck disable=SC2086 # the variant is an option and its value
     "$BIN/vislam-latency" "$LOG" --rate max --passes 1 --no-probe --lcm-url "$URL" $variant --json "$OUT/v.json" \
       --work-dir "$OUT/work_v" --quiet 2>"$OUT/stderr_v" || cat "$OUT/stderr_v"
@@ -152,12 +154,16 @@ if [ "$MODE" = e2e ]; then
   done
   check "vislamd reports its --cpu-dma-latency request" eq \
     "$(grep -c 'CPU wake-up latency: at most 0 us\|cannot open /dev/cpu_dma_latency' "$OUT/work_v/vislamd_0.log")" 1
+  check "--keep-awake: in the JSON" eq "$(value "$OUT/facts_v" keep_awake)" 1
+  check "--keep-awake: vislamd's spinner ran on its CPU (exit summary)" \
+    grep -qE 'keep awake \(--keep-awake\): CPU [0-9]+, a SCHED_IDLE thread spun [0-9]+ loops' "$OUT/work_v/vislamd_0.log"
 else
   check "no end-to-end figures without vislamd" eq "$(value "$OUT/facts" e2e_samples)" 0
   check "no LCM overhead without vislamd" eq "$(value "$OUT/facts" lcm_samples)" 0
   check "no CPU latency request unless asked" eq "$(value "$OUT/facts" cpu_dma_latency_us)" null
+  check "no spinner unless asked" eq "$(value "$OUT/facts" keep_awake)" 0
   rc=0
-  "$BIN/vislam-latency" "$LOG" --rate max --passes 1 --no-probe --no-e2e --cpu-dma-latency 0 --json "$OUT/q.json" \
+  "$BIN/vislam-latency" "$LOG" --rate max --passes 1 --no-probe --no-e2e --cpu-dma-latency 0 --keep-awake --json "$OUT/q.json" \
     --work-dir "$OUT/work_q" --quiet 2>"$OUT/stderr_q" || rc=$?
   cat "$OUT/stderr_q"
   check "--cpu-dma-latency 0: exit status 0" eq "$rc" 0
@@ -167,6 +173,9 @@ else
   [ -w /dev/cpu_dma_latency ] && writable=1
   check "--cpu-dma-latency 0: held exactly when /dev/cpu_dma_latency is writable" \
     eq "$(value "$OUT/facts_q" cpu_dma_latency_held)" "$writable"
+  check "--keep-awake: in the JSON" eq "$(value "$OUT/facts_q" keep_awake)" 1
+  check "--keep-awake: the spinner ran on --cpu in-process" \
+    grep -qE 'keep awake: CPU [0-9]+, a SCHED_IDLE thread spun [0-9]+ loops in-process' "$OUT/stderr_q"
 fi
 echo "$FAILS check(s) failed"
 exit "$FAILS"

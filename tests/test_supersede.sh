@@ -41,8 +41,16 @@ check "vislamd --warm-us -1: a usage error (2)" eq $? 2
 check "vislamd --warm-us 1000 --supersede-imu-poses: accepted" eq $? 0
 "$BIN/vislam-latency" "$SRC/data/sample.lcmlog" --warm-us x 2>/dev/null
 check "vislam-latency --warm-us x: a usage error (2)" eq $? 2
-"$BIN/vislam-latency" --help | grep -q -- "--supersede-imu-poses"
-check "vislam-latency --help names --supersede-imu-poses" eq $? 0
+# Into a file, not a pipe: grep -q would leave before a help text over one buffer (4 KiB) is
+# written, and the program's SIGPIPE would fail the pipeline.
+"$BIN/vislam-latency" --help >"$OUT/latency.help"
+check "vislam-latency --help names --supersede-imu-poses" grep -q -- "--supersede-imu-poses" "$OUT/latency.help"
+"$BIN/vislamd" --keep-awake 2>"$OUT/awake.err"
+check "vislamd --keep-awake without --cpu: a usage error (2)" eq $? 2
+check "vislamd --keep-awake without --cpu: says it needs --cpu" grep -q -- '--keep-awake needs --cpu' "$OUT/awake.err"
+"$BIN/vislamd" --keep-awake --cpu 0 --print-config >/dev/null
+check "vislamd --keep-awake --cpu 0: accepted" eq $? 0
+check "vislam-latency --help names --keep-awake" grep -q -- "--keep-awake" "$OUT/latency.help"
 
 "$BIN/vislam-sim" --out "$OUT/small.lcmlog" --truth "$OUT/small.tum" --steps "$STEPS" --max-observations 60 2>/dev/null
 check "vislam-sim writes an $STEPS-step log" eq $? 0

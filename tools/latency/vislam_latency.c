@@ -36,6 +36,7 @@
 #include <unistd.h>
 
 #include "vislam/vislam.h"
+#include "vl_awake.h"
 #include "vl_channels.h"
 #include "vl_cli.h"
 #include "vl_clock.h"
@@ -81,6 +82,7 @@ typedef struct {
     const char *warm_us;         /* the predictive wake (us) in-process and vislamd's --warm-us, as given */
     long warm_us_n;              /* the same, parsed; 0: off */
     int supersede_imu_poses;     /* end to end: vislamd's --supersede-imu-poses */
+    int keep_awake;              /* a SCHED_IDLE spinner on cpu in-process; vislamd's --keep-awake */
     int quiet;
     vl_worker_options_t worker;
 } options_t;
@@ -141,6 +143,9 @@ static void usage(FILE *f)
             "                      after an idle gap, read the estimator's memory and spin until it is\n"
             "                      due; end to end, vislamd's --warm-us N (0..%d; costs up to 2N us of\n"
             "                      CPU a frame period)\n"
+            "  --keep-awake        keep --cpu from idling: in-process a thread pinned there spins at\n"
+            "                      SCHED_IDLE (the estimator preempts it); end to end, vislamd's\n"
+            "                      --keep-awake (costs that CPU at 100 %%)\n"
             "  --supersede-imu-poses  end to end: vislamd's --supersede-imu-poses (an IMU pose at a\n"
             "                      frame's time is not sent; the frame's pose is)\n"
             "  --lcm-receive-thread  end to end: both receive through liblcm's receive thread (their\n"
@@ -220,6 +225,8 @@ static int parse_args(int argc, char **argv, options_t *o)
             o->lcm_receive_thread = 1;
         } else if (strcmp(a, "--supersede-imu-poses") == 0) {
             o->supersede_imu_poses = 1;
+        } else if (strcmp(a, "--keep-awake") == 0) {
+            o->keep_awake = 1;
         } else if (strcmp(a, "--quiet") == 0) {
             o->quiet = 1;
         } else if (a[0] != '-' || a[1] == '\0') {
@@ -957,6 +964,9 @@ static void run_e2e(const char *dir, e2e_t *e)
         if (opt.supersede_imu_poses) {
             dargv[k++] = "--supersede-imu-poses";
         }
+        if (opt.keep_awake) {
+            dargv[k++] = "--keep-awake";
+        }
         if (opt.worker.threads > 1) {
             dargv[k++] = "--threads";
             dargv[k++] = "2";
@@ -1173,6 +1183,8 @@ typedef struct {
     int worker_running;    /* the in-process pass shared its updates with a worker */
     double worker_share;   /* of the blocks handed out, those the worker ran */
     uint64_t worker_loops; /* parallel loops handed out (two per joint update) */
+    int awake_started;     /* --keep-awake: the in-process pass's spinner ran */
+    uint64_t awake_loops;  /* its spin loops */
 } results_t;
 
 static void write_work(FILE *f, const vl_work_t *w)
@@ -1227,6 +1239,8 @@ static int write_json(const char *path, const log_t *lg, const results_t *res, c
             "  \"warm_us\": %ld,\n  \"warm\": {\"periods\": %" PRIu64 ", \"touch_us\": %" PRIu64
             ", \"spin_us\": %" PRIu64 "},\n  \"supersede_imu_poses\": %s,\n",
             opt.warm_us_n, g_warm.windows, g_warm.touch_us, g_warm.spin_us, opt.supersede_imu_poses ? "true" : "false");
+    fprintf(f, "  \"keep_awake\": %s,\n  \"keep_awake_loops\": %" PRIu64 ",\n", opt.keep_awake ? "true" : "false",
+            res->awake_loops);
     fprintf(f, "  \"threads\": %d,\n  \"worker_cpu\": ", res->worker_running ? 2 : 1);
     fprintf(f, res->worker_running ? "%d" : "null", opt.worker.cpu);
     fprintf(f, ",\n  \"worker_share\": %.4f,\n  \"worker_loops\": %" PRIu64 ",\n", res->worker_share,
@@ -1455,6 +1469,14 @@ int main(int argc, char **argv)
         }
         res.worker_running = vl_worker_running(&g_worker);
     }
+    static vl_awake_t awake;
+    if (opt.keep_awake) {
+        /* After this thread's priority: the spinner must not inherit it. */
+        res.awake_started = vl_awake_start(&awake, opt.cpu, msg, sizeof(msg)) == 0;
+        if (!res.awake_started || !opt.quiet) {
+            fprintf(stderr, "vislam-latency: %s%s\n", res.awake_started ? "" : "warning: ", msg);
+        }
+    }
 
     size_t nsteps = 0, nprop = 0;
     if (!opt.quiet) {
@@ -1469,6 +1491,8 @@ int main(int argc, char **argv)
         res.worker_share = tasks > 0 ? (double)worker_tasks / (double)tasks : 0.0;
     }
     vl_worker_stop(&g_worker);
+    vl_awake_stop(&awake);
+    res.awake_loops = vl_awake_loops(&awake);
     release_rt(cpus);
     /* The end-to-end pass is measured with vislamd's own request only. */
     vl_rt_release_cpu_latency(&cpu_latency_fd);
@@ -1561,6 +1585,14 @@ int main(int argc, char **argv)
                 opt.warm_us_n, g_warm.windows,
                 g_warm.windows > 0 ? (double)g_warm.touch_us / (double)g_warm.windows : 0.0,
                 g_warm.windows > 0 ? (double)g_warm.spin_us / (double)g_warm.windows : 0.0);
+    }
+    if (opt.keep_awake) {
+        if (res.awake_started) {
+            fprintf(stderr, "  keep awake: CPU %d, a SCHED_IDLE thread spun %" PRIu64 " loops in-process\n", opt.cpu,
+                    res.awake_loops);
+        } else {
+            fprintf(stderr, "  keep awake: CPU %d, refused in-process\n", opt.cpu);
+        }
     }
     if (res.worker_running) {
         fprintf(stderr, "  threads: 2 (worker on CPU %d ran %.1f%% of the update's blocks in-process)\n",

@@ -39,6 +39,7 @@
 #include <lcm/lcm.h>
 
 #include "vislam/vislam.h"
+#include "vl_awake.h"
 #include "vl_bytes.h"
 #include "vl_channels.h"
 #include "vl_cli.h"
@@ -94,6 +95,7 @@ typedef struct {
     int rt_priority;         /* 0: leave the scheduler alone */
     int cpu;                 /* -1: no affinity */
     int cpu_dma_latency_us;  /* PM QoS request held from start-up to exit; -1: none */
+    int keep_awake;          /* a SCHED_IDLE spinner on cpu from start-up to exit */
     int supersede_imu_poses; /* an IMU sample's pose is held for a frame of its time or later, dropped when it comes */
     long warm_us;            /* the predictive wake: warm this long before a frame is due; 0: off */
     int no_mlock;
@@ -190,6 +192,8 @@ typedef struct {
     int64_t handler_mono_us;     /* CLOCK_MONOTONIC when the current input's handler was called, us */
     vl_warm_t warm;              /* --warm-us */
     uint64_t warm_sink;          /* what vl_warm_touch read, kept so that the reads stay */
+    vl_awake_t awake;            /* --keep-awake */
+    int awake_started;           /* the spinner started (else refused, or not asked for) */
     step_sample_t *step_samples; /* --step-samples: STEP_SAMPLES_MAX, allocated at start-up */
     size_t num_step_samples;
     uint64_t step_samples_dropped;
@@ -239,6 +243,9 @@ static void usage(FILE *f)
             "  --cpu-dma-latency US    hold /dev/cpu_dma_latency at US us until exit: no CPU enters an\n"
             "                          idle state slower to leave (system-wide, costs power; a refusal\n"
             "                          is a warning)\n"
+            "  --keep-awake            keep --cpu from idling between inputs: a thread pinned there spins at\n"
+            "                          SCHED_IDLE (any other thread preempts it) until exit; needs --cpu;\n"
+            "                          costs that CPU at 100 %% (a refusal is a warning)\n"
             "  --warm-us N             the predictive wake (0..%d, default 0 = off): sleep until N us before\n"
             "                          the next frame is due (the last one's arrival plus the frame period),\n"
             "                          read the estimator's memory, then poll for it without sleeping until\n"
@@ -346,6 +353,9 @@ static int parse_args(int argc, char **argv, options_t *o)
         } else if (strcmp(a, "--supersede-imu-poses") == 0) {
             o->supersede_imu_poses = 1;
             continue;
+        } else if (strcmp(a, "--keep-awake") == 0) {
+            o->keep_awake = 1;
+            continue;
         }
         if (a[0] != '-' || a[1] != '-') {
             fprintf(stderr, "vislamd: unexpected argument %s (see --help)\n", a);
@@ -415,6 +425,10 @@ static int parse_args(int argc, char **argv, options_t *o)
             fprintf(stderr, "vislamd: unknown option %s (see --help)\n", a);
             return -1;
         }
+    }
+    if (o->keep_awake && o->cpu < 0) {
+        fprintf(stderr, "vislamd: --keep-awake needs --cpu (the CPU to keep awake)\n");
+        return -1;
     }
     return 0;
 }
@@ -1109,6 +1123,14 @@ static void print_summary(const daemon_t *d)
                 d->opt.warm_us, w->windows, w->period_us, w->touch_us, w->spin_us,
                 w->windows > 0 ? (double)(w->touch_us + w->spin_us) / (double)w->windows : 0.0, w->inputs_in_spin);
     }
+    if (d->opt.keep_awake) {
+        if (d->awake_started) {
+            fprintf(stderr, "  keep awake (--keep-awake): CPU %d, a SCHED_IDLE thread spun %" PRIu64 " loops\n",
+                    d->opt.cpu, vl_awake_loops(&d->awake));
+        } else {
+            fprintf(stderr, "  keep awake (--keep-awake): CPU %d, not running (refused at start-up)\n", d->opt.cpu);
+        }
+    }
     fprintf(stderr, "  budget %" PRId64 " us (%s): %" PRIu64 " overrun(s) in %" PRIu64 " steps\n", d->budget_us,
             d->opt.budget_us > 0 ? "--budget-us" : "sensor period", d->n.overruns, d->n.steps);
     fprintf(stderr, "  step latency (CLOCK_MONOTONIC, decode to publish):\n");
@@ -1156,6 +1178,14 @@ int main(int argc, char **argv)
         if (vl_worker_start(&worker, &d->opt.worker, msg, sizeof(msg)) != 0 ||
             (d->opt.worker.threads > 1 && !d->opt.quiet)) {
             fprintf(stderr, "vislamd: %s\n", msg);
+        }
+    }
+    if (d->opt.keep_awake) {
+        /* After the daemon's own priority: the spinner must not inherit it. */
+        char msg[256];
+        d->awake_started = vl_awake_start(&d->awake, d->opt.cpu, msg, sizeof(msg)) == 0;
+        if (!d->awake_started || !d->opt.quiet) {
+            fprintf(stderr, "vislamd: %s%s\n", d->awake_started ? "" : "warning: ", msg);
         }
     }
 
@@ -1296,6 +1326,7 @@ int main(int argc, char **argv)
         publish_held(d); /* the frame behind it was not read */
     }
     publish_status(d);
+    vl_awake_stop(&d->awake); /* its final count in the summary */
     if (!d->opt.quiet) {
         print_status_line(d);
         print_summary(d);
