@@ -270,7 +270,7 @@ static vl_status_t update_and_adapt(vl_estimator_t *e, const vl_la_obs_t *rows, 
     vl_work_update(e, vl_state_dim(e), used, adapt, used + (k - partitioned));
     if (adapt) {
         vl_noise_adapt_pixel(e, rows, used, partitioned, k);
-        vl_noise_adapt_velocity(e, prior_pose);
+        vl_noise_adapt_velocity(e, prior_pose, used);
     }
     return st;
 }

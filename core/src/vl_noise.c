@@ -9,6 +9,7 @@
 #include <math.h>
 
 #include "vl_estimator_internal.h"
+#include "vl_se3.h"
 
 /* Rows of evidence the pixel noise estimate averages over (its forgetting scale). */
 #define VL_PIXEL_NOISE_MEMORY 1000.0
@@ -16,9 +17,13 @@
 #define VL_CHI2_1_MEDIAN 0.455
 /* Largest pixel variance sample, in variances in use: 10 sigma (lower caps cost the sparsest noisy cells). */
 #define VL_PIXEL_SAMPLE_CAP 100.0
-/* Step of the velocity noise in log-variance per frame, at a frame that fully informs the pose
- * (0.05 before the log-ratio's bias was taken out; 0.1 measures better on the drives, README). */
-#define VL_VELOCITY_NOISE_GAIN 0.1
+/* Observations from which a frame determines the pose on its own (48 rows for 6 unknowns): its
+ * correction is then a sample of the pose error whatever the prior and the pixel noise say. */
+#define VL_VELOCITY_DENSE_FRAME 16u
+/* Step of the velocity noise in log-variance per dense frame (README, Accuracy). */
+#define VL_VELOCITY_NOISE_GAIN 0.05
+/* Step of a sparse frame that removed all of the block's prior variance. */
+#define VL_VELOCITY_SPARSE_GAIN 0.1
 /* Bounds on what one frame's seen-to-expected correction ratio counts as. */
 #define VL_VELOCITY_RATIO_MIN 0.1
 #define VL_VELOCITY_RATIO_MAX 10.0
@@ -153,35 +158,73 @@ static double log_ratio_bias(double k)
 
 /*
  * Covariance matching for the velocity noise on the pose correction: for a
- * consistent filter E[dx dx^T] = P- - P+ on the pose block. More correction than
- * the filter expected means its prediction was too confident (noise too small),
- * less means too timid. Each variance moves by a fraction of log(ratio) plus that
- * logarithm's bias (zero on average when the filter is right), weighted by how much
- * the frame informed that block, so weak frames barely move it.
+ * consistent filter E[dx dx^T] = P- - P+ = M on the pose block. More correction
+ * than the filter expected means its prediction was too confident (noise too
+ * small), less means too timid. Each variance moves by a fraction of log(ratio)
+ * plus that logarithm's bias (zero on average when the filter is right).
+ *
+ * A dense frame (VL_VELOCITY_DENSE_FRAME observations used) determines the pose
+ * by itself, so its correction samples the pose error whatever the prior. It is
+ * matched in the body frame, where the velocity noise enters (the pose error's
+ * coordinates are the world's, in which a turn about the vehicle shows as a
+ * translation p x phi: the linear block would take up angular corrections
+ * scaled by the distance from the origin), at a fixed gain. A sparse frame's
+ * correction depends as much on the pixel noise it was weighed with; it keeps
+ * the world coordinates and a step weighted by the share of the block's prior
+ * variance it removed, which is large early in a drive and small once the
+ * unobservable drift dominates the prior: sparse frames set the noise early and
+ * then hold it. Both measured best of the variants tried (README, Accuracy).
  */
-void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36])
+void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uint32_t used)
 {
-    const double *dx = e->work_dx;
+    double M[36], dx[6];
+    double removed[2] = {0.0, 0.0}, prior[2] = {0.0, 0.0};
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < 6; ++j) {
+            M[6 * i + j] = prior_pose[6 * i + j] - *vl_P_at(e, (uint32_t)i, (uint32_t)j);
+        }
+        removed[i / 3] += M[7 * i];
+        prior[i / 3] += prior_pose[7 * i];
+        dx[i] = e->work_dx[i];
+    }
+    const int dense = used >= VL_VELOCITY_DENSE_FRAME;
+    if (dense) {
+        /* Ad(T^-1) = Ad((R^T, -R^T p)) takes both to the body frame. */
+        double Rt[9], pb[3], Ad_inv[36], AM[36];
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) {
+                Rt[3 * i + j] = e->R[3 * j + i];
+            }
+        }
+        vl_matmul(Rt, e->p, pb, 3, 3, 1);
+        for (int i = 0; i < 3; ++i) {
+            pb[i] = -pb[i];
+        }
+        vl_se3_adjoint(Rt, pb, Ad_inv);
+        vl_matmul(Ad_inv, M, AM, 6, 6, 6);
+        vl_matmul_bt(AM, Ad_inv, M, 6, 6, 6);
+        vl_matmul(Ad_inv, e->work_dx, dx, 6, 6, 1);
+    }
+
     double *var[2] = {&e->linear_velocity_var, &e->angular_velocity_var};
     const double configured[2] = {e->cfg.linear_velocity_noise, e->cfg.angular_velocity_noise};
     for (int b = 0; b < 2; ++b) {
-        double expected = 0.0, seen = 0.0, prior = 0.0, spread = 0.0;
+        double expected = 0.0, seen = 0.0, spread = 0.0;
         for (int i = 3 * b; i < 3 * b + 3; ++i) {
-            prior += prior_pose[7 * i];
-            expected += prior_pose[7 * i] - *vl_P_at(e, (uint32_t)i, (uint32_t)i);
+            expected += M[7 * i];
             seen += dx[i] * dx[i];
             for (int j = 3 * b; j < 3 * b + 3; ++j) {
-                const double m = prior_pose[6 * i + j] - *vl_P_at(e, (uint32_t)i, (uint32_t)j);
-                spread += m * m;
+                spread += M[6 * i + j] * M[6 * i + j];
             }
         }
-        if (!(expected > VL_VELOCITY_MIN_INFORMATION * prior) || !(prior > 0.0) || !(spread > 0.0)) {
+        if (!(prior[b] > 0.0) || !(removed[b] > VL_VELOCITY_MIN_INFORMATION * prior[b]) || !(expected > 0.0) ||
+            !(spread > 0.0)) {
             continue;
         }
         double ratio = seen / expected;
         ratio = ratio < VL_VELOCITY_RATIO_MIN ? VL_VELOCITY_RATIO_MIN
                                               : (ratio > VL_VELOCITY_RATIO_MAX ? VL_VELOCITY_RATIO_MAX : ratio);
-        const double gain = VL_VELOCITY_NOISE_GAIN * (expected / prior);
+        const double gain = dense ? VL_VELOCITY_NOISE_GAIN : VL_VELOCITY_SPARSE_GAIN * (removed[b] / prior[b]);
         *var[b] =
             clamp_var(*var[b] * exp(gain * (log(ratio) + log_ratio_bias(expected * expected / spread))), configured[b]);
     }

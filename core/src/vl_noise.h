@@ -30,9 +30,11 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
 /**
  * Velocity noise from the pose correction in e->work_dx against the pose
  * block's covariance before the update (prior_pose, the leading 6x6 block of P,
- * row-major).
+ * row-major); used is the number of observations the update fused (a dense
+ * frame is matched in the body frame at a fixed gain, a sparse one in the world
+ * frame at a gain weighted by what it told).
  */
-void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36]);
+void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uint32_t used);
 
 /** A frame that contradicts the prior after others did: widens all three noise levels. */
 void vl_noise_widen(vl_estimator_t *e);

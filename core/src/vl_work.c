@@ -113,8 +113,9 @@ void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint
     uint64_t flops = vl_work_joint_update(n, k);
     if (adapted) {
         /* Pixel noise: each row's posterior check and residual, a median of 3 k values;
-         * velocity noise: a few 3-vectors. */
-        flops += (uint64_t)k_frame * (VL_WORK_OBS_CHECK + VL_WORK_RESIDUAL + 12u) + 100u;
+         * velocity noise: the correction and its 6x6 covariance to the body frame (two
+         * 6x6 products and a 6-vector), a few 3x3 sums. */
+        flops += (uint64_t)k_frame * (VL_WORK_OBS_CHECK + VL_WORK_RESIDUAL + 12u) + 1100u;
     }
     add(e, &e->work.update, flops);
     e->work.state_dim = n;

@@ -42,7 +42,9 @@ CONTRADICTION_RUN = 2        # re-associated frames in a row that widen the nois
 PIXEL_NOISE_MEMORY = 1000.0  # rows the pixel noise estimate averages over
 CHI2_1_MEDIAN = 0.455        # median of chi-square(1): a median of squares to a variance
 PIXEL_SAMPLE_CAP = 100.0     # a pixel variance sample counts for at most this many variances in use
-VELOCITY_NOISE_GAIN = 0.1
+VELOCITY_DENSE_FRAME = 16     # observations from which a frame determines the pose on its own
+VELOCITY_NOISE_GAIN = 0.05    # log-variance step per dense frame
+VELOCITY_SPARSE_GAIN = 0.1    # per sparse frame (world frame), times the share of the block's prior variance it removed
 VELOCITY_RATIO_MIN, VELOCITY_RATIO_MAX = 0.1, 10.0
 # -E[log clamp(q / k, 0.1, 10)] for q ~ chi-square(k), k = 1, 1.5, 2, 2.5, 3 (numerical integration)
 LOG_RATIO_BIAS = (0.768765, 0.593114, 0.479665, 0.400083, 0.341355)
@@ -672,7 +674,7 @@ class Filter:
         ok = self.apply(rows[:used])
         if ok and used > 0 and self.cfg["adaptive_noise"]:
             self.adapt_pixel_noise(rows[:used], rejected)
-            self.adapt_velocity_noise(prior_pose)
+            self.adapt_velocity_noise(prior_pose, used)
         return ok
 
     def fuse(self, frame, rows):
@@ -848,22 +850,32 @@ class Filter:
         w = 1.0 - math.exp(-(len(samples) // 3) / PIXEL_NOISE_MEMORY)
         self.var_px = _clamp_var((1.0 - w) * self.var_px + w * sample, self.cfg["pixel"])
 
-    def adapt_velocity_noise(self, prior_pose):
+    def adapt_velocity_noise(self, prior_pose, used):
         """Covariance matching on the pose correction, E[dx dx^T] = P- - P+ = M: each block's variance
-        moves by gain x (log(seen / expected) + bias), the gain weighted by how much the frame informed
-        it; bias = -E[log clamp(chi2_k / k, 0.1, 10)] with k = tr(M)^2 / tr(M^2) makes the step zero on
-        average when the filter is right."""
+        moves by gain x (log(seen / expected) + bias), bias = -E[log clamp(chi2_k / k, 0.1, 10)] with
+        k = tr(M)^2 / tr(M^2), zero on average when the filter is right. A dense frame is matched in
+        the body frame (Ad(T^-1)), where the velocity noise enters, at a fixed gain; a sparse one in
+        the world frame, its gain weighted by the share of the block's prior variance it removed."""
+        M_world = prior_pose - self.P[:6, :6]
+        dense = used >= VELOCITY_DENSE_FRAME
+        if dense:
+            Ad_inv = se3_adjoint(self.R.T, -self.R.T @ self.p)
+            M = Ad_inv @ M_world @ Ad_inv.T
+            dx = Ad_inv @ self.dx[:6]
+        else:
+            M, dx = M_world, self.dx[:6]
         for b, (name, key) in enumerate((("var_v", "linear_velocity"), ("var_w", "angular_velocity"))):
             blk = slice(3 * b, 3 * b + 3)
-            M = prior_pose[blk, blk] - self.P[blk, blk]
             prior = np.trace(prior_pose[blk, blk])
-            expected = np.trace(M)
-            spread = float((M * M).sum())
-            seen = float(self.dx[blk] @ self.dx[blk])
-            if not expected > VELOCITY_MIN_INFORMATION * prior or not prior > 0.0 or not spread > 0.0:
+            removed = np.trace(M_world[blk, blk])
+            expected = np.trace(M[blk, blk])
+            spread = float((M[blk, blk] * M[blk, blk]).sum())
+            seen = float(dx[blk] @ dx[blk])
+            if (not prior > 0.0 or not removed > VELOCITY_MIN_INFORMATION * prior or not expected > 0.0
+                    or not spread > 0.0):
                 continue
             ratio = min(max(seen / expected, VELOCITY_RATIO_MIN), VELOCITY_RATIO_MAX)
-            gain = VELOCITY_NOISE_GAIN * (expected / prior)
+            gain = VELOCITY_NOISE_GAIN if dense else VELOCITY_SPARSE_GAIN * (removed / prior)
             step = gain * (math.log(ratio) + log_ratio_bias(expected * expected / spread))
             setattr(self, name, _clamp_var(getattr(self, name) * math.exp(step), self.cfg[key]))
 
