@@ -470,6 +470,23 @@ void test_se3_adjoint_conjugates_exp(void)
     VL_TEST_ASSERT_CLOSE(pl, pr, 3, 1e-14);
 }
 
+void test_se3_adjoint_inverse_inverts_the_adjoint(void)
+{
+    /* Ad(T^-1) Ad(T) = I, and Ad(T^-1) = Ad of the inverse pose */
+    const double xiT[6] = {1.5, -0.3, 0.8, 0.6, -1.1, 2.0};
+    static const double I6[36] = {1, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0,
+                                  0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 1};
+    double R[9], p[3], Ri[9], pi[3], Ad[36], Ad_inv[36], Ad_of_inverse[36], prod[36];
+    vl_se3_exp(xiT, R, p);
+    vl_se3_adjoint(R, p, Ad);
+    vl_se3_adjoint_inverse(R, p, Ad_inv);
+    vl_matmul(Ad_inv, Ad, prod, 6, 6, 6);
+    VL_TEST_ASSERT_CLOSE(prod, I6, 36, 1e-13);
+    inverse(R, p, Ri, pi);
+    vl_se3_adjoint(Ri, pi, Ad_of_inverse);
+    VL_TEST_ASSERT_CLOSE(Ad_inv, Ad_of_inverse, 36, 1e-14);
+}
+
 void test_se3_adjoint_of_exp_equals_exp_of_curly_hat(void)
 {
     int a, d;
@@ -692,6 +709,7 @@ int main(void)
     RUN_TEST(test_se3_log_round_trip_all_angles);
     RUN_TEST(test_se3_log_round_trip_near_pi);
     RUN_TEST(test_se3_adjoint_conjugates_exp);
+    RUN_TEST(test_se3_adjoint_inverse_inverts_the_adjoint);
     RUN_TEST(test_se3_adjoint_of_exp_equals_exp_of_curly_hat);
     RUN_TEST(test_se3_curly_hat_is_commutator);
     RUN_TEST(test_se3_left_jacobian_matches_series);

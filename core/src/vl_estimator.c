@@ -447,22 +447,13 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
     memcpy(out->rotation, e->R, sizeof(e->R));
     memcpy(out->position, e->p, sizeof(e->p));
     /* The API reports the body-frame (right) perturbation: xi_r = Ad(T^-1) xi. */
-    double P6[36], Ad[36], Rt[9], pinv[3], tmp[36];
+    double P6[36], Ad[36], tmp[36];
     for (int i = 0; i < 6; ++i) {
         for (int j = 0; j < 6; ++j) {
             P6[6 * i + j] = vl_P_value(e, (uint32_t)i, (uint32_t)j);
         }
     }
-    for (int i = 0; i < 3; ++i) {
-        for (int j = 0; j < 3; ++j) {
-            Rt[3 * i + j] = e->R[3 * j + i];
-        }
-    }
-    vl_matmul(Rt, e->p, pinv, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        pinv[i] = -pinv[i];
-    }
-    vl_se3_adjoint(Rt, pinv, Ad);
+    vl_se3_adjoint_inverse(e->R, e->p, Ad);
     vl_matmul(Ad, P6, tmp, 6, 6, 6);
     vl_matmul_bt(tmp, Ad, out->covariance, 6, 6, 6);
     for (int i = 0; i < 6; ++i) {

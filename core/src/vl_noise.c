@@ -189,18 +189,8 @@ void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uin
     }
     const int dense = used >= VL_VELOCITY_DENSE_FRAME;
     if (dense) {
-        /* Ad(T^-1) = Ad((R^T, -R^T p)) takes both to the body frame. */
-        double Rt[9], pb[3], Ad_inv[36], AM[36];
-        for (int i = 0; i < 3; ++i) {
-            for (int j = 0; j < 3; ++j) {
-                Rt[3 * i + j] = e->R[3 * j + i];
-            }
-        }
-        vl_matmul(Rt, e->p, pb, 3, 3, 1);
-        for (int i = 0; i < 3; ++i) {
-            pb[i] = -pb[i];
-        }
-        vl_se3_adjoint(Rt, pb, Ad_inv);
+        double Ad_inv[36], AM[36];
+        vl_se3_adjoint_inverse(e->R, e->p, Ad_inv);
         vl_matmul(Ad_inv, M, AM, 6, 6, 6);
         vl_matmul_bt(AM, Ad_inv, M, 6, 6, 6);
         vl_matmul(Ad_inv, e->work_dx, dx, 6, 6, 1);

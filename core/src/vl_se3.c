@@ -282,6 +282,22 @@ void vl_se3_adjoint(const double R[9], const double p[3], double Ad[36])
     vl_set_block(Ad, 1, 1, R);
 }
 
+void vl_se3_adjoint_inverse(const double R[9], const double p[3], double Ad_inv[36])
+{
+    double Rt[9];
+    double pt[3];
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            Rt[3 * i + j] = R[3 * j + i];
+        }
+    }
+    vl_matmul(Rt, p, pt, 3, 3, 1);
+    for (int i = 0; i < 3; ++i) {
+        pt[i] = -pt[i];
+    }
+    vl_se3_adjoint(Rt, pt, Ad_inv);
+}
+
 void vl_se3_curly_hat(const double xi[6], double ad[36])
 {
     static const double Z[9] = {0.0};

@@ -34,6 +34,10 @@ void vl_se3_log(const double R[9], const double p[3], double xi[6]);
 /** 6x6 adjoint of T = (R, p): Ad = [[R, hat(p) R], [0, R]]. */
 void vl_se3_adjoint(const double R[9], const double p[3], double Ad[36]);
 
+/** 6x6 adjoint of T^-1 = (R^T, -R^T p): takes a world-frame (left) perturbation to the
+ * body-frame (right) one, xi_r = Ad(T^-1) xi_l. */
+void vl_se3_adjoint_inverse(const double R[9], const double p[3], double Ad_inv[36]);
+
 /** 6x6 curly hat (small adjoint) of xi: [[hat(phi), hat(rho)], [0, hat(phi)]]. */
 void vl_se3_curly_hat(const double xi[6], double ad[36]);
 
