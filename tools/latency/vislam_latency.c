@@ -1471,7 +1471,7 @@ int main(int argc, char **argv)
     }
     static vl_awake_t awake;
     if (opt.keep_awake) {
-        /* After this thread's priority: the spinner must not inherit it. */
+        /* vl_awake pins the spinner and sets its policy itself: it inherits nothing from this thread. */
         res.awake_started = vl_awake_start(&awake, opt.cpu, msg, sizeof(msg)) == 0;
         if (!res.awake_started || !opt.quiet) {
             fprintf(stderr, "vislam-latency: %s%s\n", res.awake_started ? "" : "warning: ", msg);

@@ -1181,7 +1181,7 @@ int main(int argc, char **argv)
         }
     }
     if (d->opt.keep_awake) {
-        /* After the daemon's own priority: the spinner must not inherit it. */
+        /* vl_awake pins the spinner and sets its policy itself: it inherits nothing from this thread. */
         char msg[256];
         d->awake_started = vl_awake_start(&d->awake, d->opt.cpu, msg, sizeof(msg)) == 0;
         if (!d->awake_started || !d->opt.quiet) {
