@@ -47,3 +47,28 @@ def test_conditions_table_json_and_figure(rows, tmp_path, capsys):
                                        "vislam_ate": 11.7}
     assert cells["0027/clean/K10"]["vislam_ate"] is None
     assert out_png.read_bytes()[:8] == PNG_MAGIC
+
+
+def test_starts_table_means_and_the_cells_within_1_3x(tmp_path, capsys):
+    """Rows as tools/bench.sh --section sweep writes them for its runs from several starts."""
+    ates = {"default": (2.0, 1.0), "x10": (3.0, 2.0), "x0.1": (1.5, 1.5), "broken": (1.0, None)}
+    lines = []
+    for label, values in ates.items():
+        for start, a in zip((0, 75), values):
+            path = _json(tmp_path / f"{label}{start}.json", {"ate": {"rmse": a}}) if a is not None \
+                else str(tmp_path / "missing.json")
+            lines.append("\t".join([label, f"[noise] {label}", str(start), path]))
+    rows = tmp_path / "starts.tsv"
+    rows.write_text("\n".join(lines) + "\n")
+    out_json = tmp_path / "s.json"
+    assert bench_report.main(["starts", str(rows), "--json", str(out_json)]) == 0
+    text = capsys.readouterr().out
+    assert "| run | settings | from step 0 | from step 75 | mean ATE (m) |" in text
+    assert "| default | [noise] default | 2.000 | 1.000 | 1.500 |" in text
+    assert "| broken | [noise] broken | 1.000 | n/a | n/a |" in text  # a failed run: no mean
+    assert "Best mean: 1.500 m (default); within 1.3x of it: 2 of 4 (1 with a failed run); " \
+           "outside: x10 (1.67x)." in text
+    d = json.loads(out_json.read_text())
+    assert d["starts"] == ["0", "75"]
+    assert d["runs"]["x10"] == {"settings": "[noise] x10", "mean": 2.5, "ate": [3.0, 2.0]}
+    assert d["runs"]["broken"]["mean"] is None

@@ -6,6 +6,8 @@ input file gives "n/a" in its cells, never an exception, so one failed run does 
 the others.
 
   ate ROWS        label, data, settings, ate.json[, stats.json]
+  starts ROWS     label, settings, start step, ate.json: one row per label with the ATE from each
+                  start and their mean; then the best mean and the labels within 1.3x of it
   window ROWS     max_landmarks, ate.json (0027), stats.json (0027), stats.json (0034)
   timing ROWS     label, stats.json (vislam-run --timing --stats-json)
   callgrind DIR   per-call costs from the dumps of callgrind --dump-after=vl_update
@@ -91,6 +93,40 @@ def cmd_ate(args):
                      _fmt(c.get("observations_used")), _fmt(c.get("observations_gated")),
                      _fmt(c.get("frames_reassociated")), _fmt(c.get("numerical_failures"))])
     print(_table(header, rows))
+
+
+def cmd_starts(args):
+    """One drive run from several starts per setting: a steadier measure than one run, whose ATE
+    moves by tenths of a metre with any change of which observations are used."""
+    labels, settings, starts, ates = [], {}, [], {}
+    for label, setting, start, ate_path in (r[:4] for r in _rows(args.rows)):
+        if label not in settings:
+            labels.append(label)
+            settings[label] = setting
+        if start not in starts:
+            starts.append(start)
+        ates[label, start] = dig(load_json(ate_path), "ate", "rmse")
+    means = {}
+    for label in labels:
+        v = [ates.get((label, s)) for s in starts]
+        means[label] = sum(v) / len(v) if v and all(x is not None for x in v) else None
+    header = ["run", "settings"] + [f"from step {s}" for s in starts] + ["mean ATE (m)"]
+    print(_table(header, [[label, settings[label]] + [_fmt(ates.get((label, s))) for s in starts] +
+                          [_fmt(means[label])] for label in labels]))
+    known = {k: m for k, m in means.items() if m is not None}
+    if known:
+        best = min(known, key=known.get)
+        within = [k for k in labels if k in known and known[k] <= 1.3 * known[best]]
+        print(f"\nBest mean: {known[best]:.3f} m ({best}); within 1.3x of it: {len(within)} of {len(labels)}"
+              + ("" if len(known) == len(labels) else f" ({len(labels) - len(known)} with a failed run)")
+              + "; outside: " + (", ".join(f"{k} ({known[k] / known[best]:.2f}x)" for k in labels
+                                          if k in known and k not in within) or "none") + ".")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"starts": starts, "runs": {k: {"settings": settings[k], "mean": means[k],
+                                                      "ate": [ates.get((k, s)) for s in starts]}
+                                                  for k in labels}}, f, indent=2)
+            f.write("\n")
 
 
 def _timing(stats, fn):
@@ -410,7 +446,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="bench_report", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
-    for name in ("ate", "window", "timing", "daemon"):
+    for name in ("ate", "starts", "window", "timing", "daemon"):
         p = sub.add_parser(name)
         p.add_argument("rows")
         p.add_argument("--json")
@@ -427,7 +463,8 @@ def main(argv=None):
     p = sub.add_parser("latency")
     p.add_argument("rows")
     args = ap.parse_args(argv)
-    return {"ate": cmd_ate, "window": cmd_window, "timing": cmd_timing, "callgrind": cmd_callgrind,
+    return {"ate": cmd_ate, "starts": cmd_starts, "window": cmd_window, "timing": cmd_timing,
+            "callgrind": cmd_callgrind,
             "daemon": cmd_daemon, "conditions": cmd_conditions, "soak": cmd_soak,
             "latency": cmd_latency}[args.cmd](args) or 0
 
