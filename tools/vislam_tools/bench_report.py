@@ -464,9 +464,8 @@ def main(argv=None):
     p.add_argument("rows")
     args = ap.parse_args(argv)
     return {"ate": cmd_ate, "starts": cmd_starts, "window": cmd_window, "timing": cmd_timing,
-            "callgrind": cmd_callgrind,
-            "daemon": cmd_daemon, "conditions": cmd_conditions, "soak": cmd_soak,
-            "latency": cmd_latency}[args.cmd](args) or 0
+            "callgrind": cmd_callgrind, "daemon": cmd_daemon, "conditions": cmd_conditions,
+            "soak": cmd_soak, "latency": cmd_latency}[args.cmd](args) or 0
 
 
 if __name__ == "__main__":
