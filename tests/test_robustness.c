@@ -414,6 +414,8 @@ void test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_cal
     clean_steps(&est, &cfg, T0, 3);
     /* The 1e300 m/s: with landmarks in the window, integrating it overflows their covariance. */
     TEST_ASSERT_TRUE(vl_window_size(&est) > 0);
+    vl_pose_t before;
+    get_pose(&est, &before);
     vl_imu_sample_t absurd = imu_at(T0 + 3 * STEP, 1e300);
     TEST_ASSERT_EQUAL_INT(VL_RESET, vl_propagate(&est, &absurd)); /* interpolated to at once */
     /* The sample that led there does not carry the motion on: the next one restarts it. */
@@ -427,15 +429,56 @@ void test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_cal
     TEST_ASSERT_EQUAL_MEMORY(&cfg.calibration, &est.cfg.calibration, sizeof(cfg.calibration));
     TEST_ASSERT_EQUAL_DOUBLE(cfg.max_speed, est.cfg.max_speed);
     vl_pose_t p;
-    get_pose(&est, &p); /* finite: vl_get_pose refuses otherwise */
-    TEST_ASSERT_EQUAL_DOUBLE(0.0, p.position[0]);
-    TEST_ASSERT_EQUAL_INT64(T0 + 4 * STEP, p.utime); /* the clock is kept */
+    get_pose(&est, &p);                                          /* finite: vl_get_pose refuses otherwise */
+    TEST_ASSERT_EQUAL_DOUBLE(before.position[0], p.position[0]); /* where it stood before that sample */
+    TEST_ASSERT_EQUAL_INT64(T0 + 4 * STEP, p.utime);             /* the clock is kept */
     TEST_ASSERT_EQUAL_UINT32(0, vl_get_state_flags(&est));
 
     /* It tracks again from the next sample. */
     clean_steps(&est, &cfg, T0 + 5 * STEP, 5);
     TEST_ASSERT_EQUAL_UINT32(0, vl_get_state_flags(&est));
     TEST_ASSERT_TRUE(vl_window_size(&est) > 0);
+}
+
+void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    clean_steps(&est, &cfg, T0, 3);
+    /* Away from the start: 2 m/s forward for three steps, IMU only. */
+    for (int k = 3; k < 6; ++k) {
+        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 2.0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    }
+    vl_pose_t before, after;
+    get_pose(&est, &before);
+    TEST_ASSERT_TRUE(before.position[0] > 0.5);
+    TEST_ASSERT_TRUE(vl_window_size(&est) > 0);
+    /* A negative variance: the next input's check finds it. */
+    est.P[(size_t)4 * VL_STATE_DIM_MAX + 4] = -1e-3;
+    const vl_imu_sample_t s = imu_at(T0 + 6 * STEP, 2.0);
+    TEST_ASSERT_EQUAL_INT(VL_RESET, vl_propagate(&est, &s));
+    get_pose(&est, &after);
+    /* The world frame is kept: the pose is the one before that input, to the bit, and the
+     * estimator starts there as vl_init starts at the identity: no covariance, no window. */
+    TEST_ASSERT_EQUAL_MEMORY(before.rotation, after.rotation, sizeof(before.rotation));
+    TEST_ASSERT_EQUAL_MEMORY(before.position, after.position, sizeof(before.position));
+    for (int i = 0; i < 36; ++i) {
+        TEST_ASSERT_EQUAL_DOUBLE(0.0, after.covariance[i]);
+    }
+    TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->divergence_resets);
+    /* The motion goes on from there with the next sample. */
+    const vl_imu_sample_t next = imu_at(T0 + 7 * STEP, 2.0), later = imu_at(T0 + 8 * STEP, 2.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &next));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &later));
+    get_pose(&est, &after);
+    TEST_ASSERT_TRUE(after.position[0] > before.position[0] + 0.1);
+    /* A new timeline still starts a new world at the identity (vl_reset likewise). */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_reset(&est));
+    get_pose(&est, &after);
+    TEST_ASSERT_EQUAL_DOUBLE(0.0, after.position[0]);
 }
 
 void test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed_out(void)
@@ -615,6 +658,7 @@ int main(void)
     RUN_TEST(test_absurd_imu_samples_are_refused_and_counted);
     RUN_TEST(test_pixels_outside_the_image_and_absurd_disparity_are_refused);
     RUN_TEST(test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_calibration);
+    RUN_TEST(test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged);
     RUN_TEST(test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed_out);
     RUN_TEST(test_frames_contradicting_the_state_frame_after_frame_reset_the_filter);
     RUN_TEST(test_vl_reset_keeps_configuration_and_counters);

@@ -52,6 +52,7 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
     e->cfg = *cfg;
     static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(e->R, I3, sizeof(I3));
+    memcpy(e->sound_R, I3, sizeof(I3));
     /* Only the leading 12 x 12 block is live at start; the rest is written as landmarks arrive. */
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
         memset(&vl_P(e)[(size_t)j * VL_LD], 0, VL_CORE_DIM * sizeof(double));
@@ -147,20 +148,34 @@ vl_status_t vl_reset(vl_estimator_t *e)
 
 /*
  * After an input was used: a diverged estimator restarts (VL_RESET), else result
- * stands. When an IMU sample led there, the sample does not carry the motion on:
- * the motion restarts at the next sample.
+ * stands and the pose is the one a later divergence goes back to. The restart
+ * keeps the world frame: it starts at the pose before the input that diverged
+ * (a consumer's map and path stay continuous; that input's motion is lost),
+ * with vl_init's covariance, as the anchor of its world. When an IMU sample led
+ * there, the sample does not carry the motion on: the motion restarts at the
+ * next sample.
  */
 static vl_status_t guard_divergence(vl_estimator_t *e, vl_input_kind_t kind, int64_t utime, vl_status_t result)
 {
     if (!vl_guard_diverged(e)) {
+        memcpy(e->sound_R, e->R, sizeof(e->sound_R));
+        memcpy(e->sound_p, e->p, sizeof(e->sound_p));
         return result;
     }
+    double R[9], p[3];
+    memcpy(R, e->sound_R, sizeof(R));
+    memcpy(p, e->sound_p, sizeof(p));
     reset_state(e, 1);
+    memcpy(e->R, R, sizeof(R));
+    memcpy(e->p, p, sizeof(p));
+    memcpy(e->sound_R, R, sizeof(R));
+    memcpy(e->sound_p, p, sizeof(p));
     if (kind == VL_INPUT_IMU) {
         e->held_trusted = 0;
     }
     e->counters.divergence_resets++;
-    vl_log_msg(e, VL_LOG_ERROR, utime, "estimator diverged; re-initialized with the same configuration");
+    vl_log_msg(e, VL_LOG_ERROR, utime,
+               "estimator diverged; re-initialized with the same configuration at the pose before this input");
     return VL_RESET;
 }
 

@@ -403,6 +403,10 @@ typedef struct {
     double frame_R[9]; /**< world-from-IMU rotation, row-major */
     double frame_p[3]; /**< m */
 
+    /** The pose after the last input that passed the divergence check: where a divergence re-initializes. */
+    double sound_R[9]; /**< world-from-IMU rotation, row-major */
+    double sound_p[3]; /**< m */
+
     /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
     uint32_t num_prev_obs;
     vl_stereo_obs_t prev_obs[VL_MAX_FRAME_FEATURES];
