@@ -148,28 +148,39 @@ vl_status_t vl_reset(vl_estimator_t *e)
 
 /*
  * After an input was used: a diverged estimator restarts (VL_RESET), else result
- * stands and the pose is the one a later divergence goes back to. The restart
- * keeps the world frame: it starts at the pose before the input that diverged
- * (a consumer's map and path stay continuous; that input's motion is lost),
- * with vl_init's covariance, as the anchor of its world. When an IMU sample led
- * there, the sample does not carry the motion on: the motion restarts at the
- * next sample.
+ * stands and the pose (with its covariance) is the one a later divergence goes
+ * back to. The restart keeps the world frame: it starts at the pose before the
+ * input that diverged (a consumer's map and path stay continuous; that input's
+ * motion is lost) and that pose's covariance, the rest as vl_init leaves it.
+ * When an IMU sample led there, the sample does not carry the motion on: the
+ * motion restarts at the next sample.
  */
 static vl_status_t guard_divergence(vl_estimator_t *e, vl_input_kind_t kind, int64_t utime, vl_status_t result)
 {
     if (!vl_guard_diverged(e)) {
         memcpy(e->sound_R, e->R, sizeof(e->sound_R));
         memcpy(e->sound_p, e->p, sizeof(e->sound_p));
+        for (uint32_t j = 0; j < 6; ++j) {
+            memcpy(&e->sound_P[6 * j], vl_P_at(e, 0, j), 6 * sizeof(double));
+        }
         return result;
     }
-    double R[9], p[3];
+    double R[9], p[3], P[36];
     memcpy(R, e->sound_R, sizeof(R));
     memcpy(p, e->sound_p, sizeof(p));
+    memcpy(P, e->sound_P, sizeof(P));
     reset_state(e, 1);
     memcpy(e->R, R, sizeof(R));
     memcpy(e->p, p, sizeof(p));
     memcpy(e->sound_R, R, sizeof(R));
     memcpy(e->sound_p, p, sizeof(p));
+    /* Sound when it was saved; checked again, since the saved copy is all there is to go on. */
+    if (vl_guard_block_sound(P, 6, 6)) {
+        for (uint32_t j = 0; j < 6; ++j) {
+            memcpy(vl_P_at(e, 0, j), &P[6 * j], 6 * sizeof(double));
+        }
+        memcpy(e->sound_P, P, sizeof(P));
+    }
     if (kind == VL_INPUT_IMU) {
         e->held_trusted = 0;
     }

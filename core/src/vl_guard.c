@@ -131,12 +131,29 @@ int vl_guard_frame_repeats_previous(const vl_estimator_t *e, const vl_stereo_fra
     return common > 0;
 }
 
+int vl_guard_block_sound(const double *B, uint32_t n, size_t ld)
+{
+    for (uint32_t j = 0; j < n; ++j) {
+        const double b_jj = B[(size_t)j * ld + j];
+        if (!(b_jj >= 0.0) || !isfinite(b_jj)) {
+            return 0;
+        }
+        for (uint32_t i = 0; i < j; ++i) {
+            const double bij = B[(size_t)j * ld + i];
+            const double bound = B[(size_t)i * ld + i] * b_jj;
+            if (!isfinite(bij) || bij * bij > bound * (1.0 + VL_DIVERGENCE_CORRELATION_SLACK)) {
+                return 0;
+            }
+        }
+    }
+    return 1;
+}
+
 /*
  * A non-finite state, a covariance with a negative or non-finite diagonal (or
- * non-finite deferred prediction accumulators) or a core block violating
- * |P_ij| <= sqrt(P_ii P_jj) (a necessary condition of positive
- * semi-definiteness, cheap enough for every step), or, in SLAM,
- * divergence_frames failed updates in a row.
+ * non-finite deferred prediction accumulators) or a core block that is not
+ * sound (vl_guard_block_sound), or, in SLAM, divergence_frames failed updates
+ * in a row.
  */
 int vl_guard_diverged(const vl_estimator_t *e)
 {
@@ -151,20 +168,14 @@ int vl_guard_diverged(const vl_estimator_t *e)
         (!vl_all_finite(d->noise, VL_CORE_DIM * VL_CORE_DIM) || !vl_all_finite(d->transition, VL_CORE_DIM * 6))) {
         return 1;
     }
+    if (!vl_guard_block_sound(e->P, VL_CORE_DIM, VL_LD)) { /* the core block: current at any time */
+        return 1;
+    }
     const uint32_t n = d->steps == 0 ? vl_state_dim(e) : VL_CORE_DIM;
-    for (uint32_t i = 0; i < n; ++i) {
+    for (uint32_t i = VL_CORE_DIM; i < n; ++i) {
         const double d_ii = vl_P_value(e, i, i);
         if (!(d_ii >= 0.0) || !isfinite(d_ii)) {
             return 1;
-        }
-    }
-    for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
-        for (uint32_t i = 0; i < j; ++i) {
-            const double pij = vl_P_value(e, i, j);
-            const double bound = vl_P_value(e, i, i) * vl_P_value(e, j, j);
-            if (!isfinite(pij) || pij * pij > bound * (1.0 + VL_DIVERGENCE_CORRELATION_SLACK)) {
-                return 1;
-            }
         }
     }
     return e->cfg.mode == VL_MODE_SLAM && e->cfg.divergence_frames > 0 &&

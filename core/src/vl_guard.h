@@ -49,4 +49,11 @@ int vl_guard_frame_repeats_previous(const vl_estimator_t *e, const vl_stereo_fra
 /** Is the state diverged (non-finite, an impossible covariance, or too many failed updates in a row)? */
 int vl_guard_diverged(const vl_estimator_t *e);
 
+/**
+ * Whether the symmetric n x n block B (column-major, leading dimension ld) passes the
+ * divergence check's covariance conditions: a finite, non-negative diagonal and
+ * |B_ij| <= sqrt(B_ii B_jj) (necessary for positive semi-definiteness).
+ */
+int vl_guard_block_sound(const double *B, uint32_t n, size_t ld);
+
 #endif /* VISLAM_VL_GUARD_H */

@@ -404,8 +404,9 @@ typedef struct {
     double frame_p[3]; /**< m */
 
     /** The pose after the last input that passed the divergence check: where a divergence re-initializes. */
-    double sound_R[9]; /**< world-from-IMU rotation, row-major */
-    double sound_p[3]; /**< m */
+    double sound_R[9];  /**< world-from-IMU rotation, row-major */
+    double sound_p[3];  /**< m */
+    double sound_P[36]; /**< its 6x6 block of P, column-major (the internal perturbation; m^2, rad^2) */
 
     /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
     uint32_t num_prev_obs;
