@@ -880,8 +880,9 @@ static int write_ini(FILE *f, const vl_config_t *cfg, int with_calibration, writ
         if (new_section) {
             fprintf(f, "%s[%s]\n", section == NULL ? "" : "\n", k->section);
             section = k->section;
-            if (style != WRITE_PLAIN && section_comment(section, style) != NULL) {
-                write_comment(f, section_comment(section, style));
+            const char *comment = style != WRITE_PLAIN ? section_comment(section, style) : NULL;
+            if (comment != NULL) {
+                write_comment(f, comment);
                 fputs(commented ? ";\n" : "\n", f);
             }
         }
