@@ -688,6 +688,35 @@ void test_window_never_exceeds_its_limit_and_keeps_observed_landmarks(void)
                              vl_get_counters(&est)->landmarks_marginalized);
 }
 
+void test_a_sparse_frame_admits_its_new_tracks_at_first_sight(void)
+{
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    kitti_config(&cfg);
+    TEST_ASSERT_EQUAL_UINT32(2, cfg.min_track_length);
+    const uint32_t below = cfg.first_sight_below;
+    /* Fewer observations than first_sight_below: every new track becomes a landmark now. */
+    start_at(&cfg, 1000000);
+    make_frame(&cfg, &frame, 1000000, below - 1u, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(below - 1u, vl_window_size(&est));
+    /* As many: the tracks wait for their second frame (min_track_length). */
+    start_at(&cfg, 1000000);
+    make_frame(&cfg, &frame, 1000000, below, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
+    frame.utime = 1100000;
+    frame.obs[0].u_left += 0.25; /* not a repeated image */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(below, vl_window_size(&est));
+    /* 0: never at first sight. */
+    cfg.first_sight_below = 0;
+    start_at(&cfg, 1000000);
+    make_frame(&cfg, &frame, 1000000, 3, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
+}
+
 void test_window_admits_the_largest_disparity_first(void)
 {
     static vl_stereo_frame_t frame;
@@ -956,6 +985,7 @@ int main(void)
     RUN_TEST(test_la_move_block_leaves_the_exact_marginal);
     RUN_TEST(test_flush_hands_every_landmark_to_the_sink_with_its_marginal);
     RUN_TEST(test_window_never_exceeds_its_limit_and_keeps_observed_landmarks);
+    RUN_TEST(test_a_sparse_frame_admits_its_new_tracks_at_first_sight);
     RUN_TEST(test_window_admits_the_largest_disparity_first);
     RUN_TEST(test_get_landmarks_reports_capacity_shortfall);
     RUN_TEST(test_update_uses_at_most_max_update_observations);

@@ -1,6 +1,7 @@
 /*
  * The bounded landmark window. A track becomes a landmark after min_track_length
- * frames if its observations agree; when the window is full, candidates are
+ * frames (in a frame of fewer than first_sight_below observations, at first
+ * sight) if its observations agree; when the window is full, candidates are
  * ranked by disparity (nearer points constrain translation better) times a bonus
  * for track age, and room is made only by evicting landmarks not observed in
  * this frame. A landmark whose track ended or broke is marginalized: its rows
@@ -293,6 +294,7 @@ uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, u
 {
     vl_la_obs_t *rows = e->work_rows;
     uint32_t k = 0;
+    const uint32_t min_track_length = count < e->cfg.first_sight_below ? 1u : e->cfg.min_track_length;
     for (uint32_t i = 0; i < count; ++i) {
         const vl_stereo_obs_t *o = &frame->obs[i];
         if (!vl_guard_observation_valid(o)) {
@@ -351,7 +353,7 @@ uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, u
             t->frames_seen = 1;
         }
         pending_triangulate(e, y, t);
-        if (t->frames_seen >= e->cfg.min_track_length) {
+        if (t->frames_seen >= min_track_length) {
             add_candidate(candidates, i, admission_score(disparity, t->frames_seen));
         }
     }

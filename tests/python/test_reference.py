@@ -113,8 +113,8 @@ def test_reference_agrees_with_repeat_anchor_noise(build_dir, tmp_path):
 def test_reference_agrees_on_a_sparse_drive_with_outliers(build_dir, tmp_path, monkeypatch):
     """The sparsest realistic simulated drive (at most 5 observations a frame, mismatches among them):
     frames of one or two rows whose pixel noise samples are an outlier's own. The reference caps each
-    sample as the core does (it agrees), and the cap matters here: without it in the reference alone
-    the poses move."""
+    sample as the core does and admits new tracks at first sight (it agrees), and both matter here:
+    without either in the reference alone the poses move."""
     from reference import compare as compare_tool
     from reference import vl_reference
     log = tmp_path / "sparse.lcmlog"
@@ -125,6 +125,10 @@ def test_reference_agrees_on_a_sparse_drive_with_outliers(build_dir, tmp_path, m
     assert fig["agreement"]["frames_compared"] == 100
     assert fig["agreement"]["position_max_m"] < TOLERANCE
     assert rc == 0
+    # its frames are sparse, so new tracks are admitted at first sight, in the reference too
+    rc, fig = compare(build_dir, tmp_path, "--set", "first_sight_below=0", log=log)
+    assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
+    assert rc == 1
     monkeypatch.setattr(vl_reference, "PIXEL_SAMPLE_CAP", float("inf"))
     rc = compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)])
     assert rc == 1

@@ -595,8 +595,11 @@ class Filter:
 
     def classify(self, frame, frame_dt):
         """Observations of window landmarks become rows; the others continue (or start) pending
-        tracks, which become candidates after min_track_length frames if consistent."""
+        tracks, which become candidates after min_track_length frames (at first sight in a frame of
+        fewer than first_sight_below observations) if consistent."""
         rows, candidates = [], []
+        # a sparse frame admits its new tracks at first sight
+        min_track_length = 1 if len(frame) < self.cfg["first_sight_below"] else self.cfg["min_track_length"]
         slot_of = {s.id: k for k, s in enumerate(self.slots)}
         for i, o in enumerate(frame):
             oid = int(o[0])
@@ -629,7 +632,7 @@ class Filter:
                 t.frames_seen = 1
             t.point, J = self.triangulate_world(y)
             t.cov = J @ np.diag(stereo_noise(self.var_px)) @ J.T
-            if t.frames_seen >= self.cfg["min_track_length"] and len(candidates) < MAX_FRAME_FEATURES:
+            if t.frames_seen >= min_track_length and len(candidates) < MAX_FRAME_FEATURES:
                 age = min(t.frames_seen - 1, AGE_CAP)
                 candidates.append((i, disparity * (1.0 + AGE_BONUS * age)))
         return rows, candidates

@@ -141,6 +141,10 @@ typedef enum {
     X("landmarks", "min_track_length", min_track_length, UINT32, 2, 1, UINT32_MAX, 0, "", \
       "Frames a new track must span before its landmark is admitted. From the second frame on, " \
       "the track must also agree with its previous observation (gate_chi2).") \
+    X("landmarks", "first_sight_below", first_sight_below, UINT32, 24, 0, UINT32_MAX, 0, "", \
+      "A frame with fewer observations than this admits its new tracks at first sight, whatever " \
+      "min_track_length: a sparse tracker's tracks are short, and waiting a frame loses much of " \
+      "each (0: never).") \
     \
     /* ---- [outliers] ---- */ \
     X("outliers", "gate_chi2", gate_chi2, DOUBLE, 11.34, 0.0, DBL_MAX, 0, "", \
