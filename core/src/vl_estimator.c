@@ -75,11 +75,15 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
  * Back to vl_init's state with the same configuration, counters kept. The
  * window's landmarks are dropped, not mapped: after a divergence they are
  * corrupt, and after a new timeline they belong to a world the restart does
- * not share. keep_clock keeps the time bookkeeping and the held IMU sample, so
- * the inputs that follow a divergence continue as before; a new timeline (and
- * vl_reset) starts the clock afresh.
+ * not share. After a divergence (keep_world) the inputs that follow continue
+ * as before: the time bookkeeping and the held IMU sample are kept, and so is
+ * the world frame, the estimator starting at the last sound pose (before the
+ * input that diverged; that input's motion is lost) with that pose's
+ * covariance when the saved copy still passes the check (else none, as at
+ * vl_init). A new timeline (and vl_reset) starts a new world at the identity
+ * and the clock afresh.
  */
-static void reset_state(vl_estimator_t *e, int keep_clock)
+static void reset_state(vl_estimator_t *e, int keep_world)
 {
     const vl_estimator_t *old = e; /* the fields are copied out before init_state clears them */
     const vl_config_t cfg = old->cfg;
@@ -94,10 +98,14 @@ static void reset_state(vl_estimator_t *e, int keep_clock)
     memcpy(held_linear, old->held_linear, sizeof(held_linear));
     memcpy(held_angular, old->held_angular, sizeof(held_angular));
     const int held_trusted = old->held_trusted;
+    double sound_R[9], sound_p[3], sound_P[36];
+    memcpy(sound_R, old->sound_R, sizeof(sound_R));
+    memcpy(sound_p, old->sound_p, sizeof(sound_p));
+    memcpy(sound_P, old->sound_P, sizeof(sound_P));
     init_state(e, &cfg);
     e->counters = counters;
     e->work = work;
-    if (keep_clock) {
+    if (keep_world) {
         e->have_imu = have_imu;
         e->have_frame = have_frame;
         e->imu_silent = imu_silent;
@@ -108,6 +116,16 @@ static void reset_state(vl_estimator_t *e, int keep_clock)
         memcpy(e->held_linear, held_linear, sizeof(held_linear));
         memcpy(e->held_angular, held_angular, sizeof(held_angular));
         e->held_trusted = held_trusted;
+        memcpy(e->R, sound_R, sizeof(sound_R));
+        memcpy(e->p, sound_p, sizeof(sound_p));
+        memcpy(e->sound_R, sound_R, sizeof(sound_R));
+        memcpy(e->sound_p, sound_p, sizeof(sound_p));
+        if (vl_guard_block_sound(sound_P, 6, 6)) {
+            for (uint32_t j = 0; j < 6; ++j) {
+                memcpy(vl_P_at(e, 0, j), &sound_P[6 * j], 6 * sizeof(double));
+            }
+            memcpy(e->sound_P, sound_P, sizeof(sound_P));
+        }
     }
 }
 
@@ -147,13 +165,10 @@ vl_status_t vl_reset(vl_estimator_t *e)
 }
 
 /*
- * After an input was used: a diverged estimator restarts (VL_RESET), else result
- * stands and the pose (with its covariance) is the one a later divergence goes
- * back to. The restart keeps the world frame: it starts at the pose before the
- * input that diverged (a consumer's map and path stay continuous; that input's
- * motion is lost) and that pose's covariance, the rest as vl_init leaves it.
- * When an IMU sample led there, the sample does not carry the motion on: the
- * motion restarts at the next sample.
+ * After an input was used: a diverged estimator restarts in its world (VL_RESET,
+ * see reset_state), else result stands and the pose with its covariance is the
+ * sound one a later divergence goes back to. When an IMU sample led there, the
+ * sample does not carry the motion on: the motion restarts at the next sample.
  */
 static vl_status_t guard_divergence(vl_estimator_t *e, vl_input_kind_t kind, int64_t utime, vl_status_t result)
 {
@@ -165,22 +180,7 @@ static vl_status_t guard_divergence(vl_estimator_t *e, vl_input_kind_t kind, int
         }
         return result;
     }
-    double R[9], p[3], P[36];
-    memcpy(R, e->sound_R, sizeof(R));
-    memcpy(p, e->sound_p, sizeof(p));
-    memcpy(P, e->sound_P, sizeof(P));
     reset_state(e, 1);
-    memcpy(e->R, R, sizeof(R));
-    memcpy(e->p, p, sizeof(p));
-    memcpy(e->sound_R, R, sizeof(R));
-    memcpy(e->sound_p, p, sizeof(p));
-    /* Sound when it was saved; checked again, since the saved copy is all there is to go on. */
-    if (vl_guard_block_sound(P, 6, 6)) {
-        for (uint32_t j = 0; j < 6; ++j) {
-            memcpy(vl_P_at(e, 0, j), &P[6 * j], 6 * sizeof(double));
-        }
-        memcpy(e->sound_P, P, sizeof(P));
-    }
     if (kind == VL_INPUT_IMU) {
         e->held_trusted = 0;
     }
