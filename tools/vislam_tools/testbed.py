@@ -295,7 +295,8 @@ def _execute(argv, env):
     except OSError as exc:
         return f"cannot run {argv[0]}: {exc.strerror}"
     if res.returncode != 0:
-        return f"{os.path.basename(argv[0])} exited {res.returncode}: {_last_line(res.stderr) or _last_line(res.stdout)}"
+        why = _last_line(res.stderr) or _last_line(res.stdout)
+        return f"{os.path.basename(argv[0])} exited {res.returncode}: {why}"
     return None
 
 
@@ -400,8 +401,9 @@ def execute_plan(plan, out_dir, config=None, jobs=2, warn=None, build_dir=None):
             if name not in used:
                 used.append(name)
     failed_logs = {}
-    todo = [plan.logs[n] for n in used
-            if not (os.path.isfile(plan.logs[n].path) and (not plan.logs[n].truth or os.path.isfile(plan.logs[n].truth)))]
+    def cached(spec):
+        return os.path.isfile(spec.path) and (not spec.truth or os.path.isfile(spec.truth))
+    todo = [plan.logs[n] for n in used if not cached(plan.logs[n])]
     cmds.append("# ---- input logs")
     for n in used:
         spec = plan.logs[n]
@@ -446,7 +448,8 @@ def execute_plan(plan, out_dir, config=None, jobs=2, warn=None, build_dir=None):
         for mode in ("slam", "dr") if c.dr else ("slam",):
             key = (c.log, mode)
             traj = runs[key][1]
-            ev = ["tools/evaluate", "ate", "--estimate", traj, "--gt", truth] + (["--calib", c.calib] if c.calib else [])
+            ev = ["tools/evaluate", "ate", "--estimate", traj, "--gt", truth]
+            ev += ["--calib", c.calib] if c.calib else []
             cmds.append("# " + _quote(ev))
             if key in failed_runs:
                 c.notes.append(f"{mode}: {failed_runs[key]}")
