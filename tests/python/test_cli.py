@@ -13,6 +13,7 @@ from conftest import REPO
 from vislam_tools import cli
 
 LAUNCHERS = [("evaluate", "tools/evaluate"), ("npz2lcm", "tools/npz2lcm"), ("conditions", "tools/conditions"),
+             ("testbed", "tools/testbed"),
              ("vislam-faults", "tools/faults/vislam-faults")]
 
 
