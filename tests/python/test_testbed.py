@@ -108,7 +108,7 @@ def test_missing_data_skips_the_data_suites(tmp_path):
     assert {c.suite for c in plan.cells} == {"sim", "realistic"}
     assert len([c for c in plan.cells if c.suite == "sim"]) == 10
     assert len([c for c in plan.cells if c.suite == "realistic"]) == 36
-    assert sum("skipped" in n for n in plan.notes) == 3
+    assert sum("skipped" in n for n in plan.notes) == 4
 
 
 def test_plan_counts_and_shared_logs(tmp_path):
@@ -118,11 +118,16 @@ def test_plan_counts_and_shared_logs(tmp_path):
         (data / f).write_text("")
     plan = testbed.build_plan(list(testbed.SUITES), str(tmp_path / "bin"), str(data), str(tmp_path / "logs"))
     count = {s: len([c for c in plan.cells if c.suite == s]) for s in testbed.SUITES}
-    assert count == {"conditions": 30, "grid": 31, "sim": 10, "realistic": 36, "starts": 8}
+    assert count == {"conditions": 30, "grid": 31, "sim": 10, "realistic": 36, "starts": 8, "sweep": 104}
     names = {c.name for c in plan.cells if c.suite == "conditions"}
     assert "0027_given_x2_K1_s1" in names and "0027_given_x2_K1_s1" in {c.name for c in plan.cells if c.suite == "grid"}
-    # 24 + 2 x 4 (with the pseudo-truths' full-density logs) + the grid's 18 new ones + 8 starts + 46 simulated
+    # 24 + 2 x 4 (with the pseudo-truths' full-density logs) + the grid's 18 new ones + 8 starts + 46
+    # simulated; the sweep's 8 drives are conditions cells
     assert len(plan.logs) == 24 + 8 + 18 + 8 + 46
+    sweep = [c for c in plan.cells if c.suite == "sweep"]
+    assert {c.log for c in sweep} <= {c.log for c in plan.cells if c.suite == "conditions"}
+    assert len({c.group for c in sweep}) == 8 and len({c.name for c in sweep}) == 104
+    assert sorted({c.variant for c in sweep})[:3] == ["", "angular_velocity x0.1", "angular_velocity x0.3"]
 
 
 def _build_bin():
@@ -183,3 +188,46 @@ def test_user_errors_are_one_line(tmp_path, capsys):
     with pytest.raises(SystemExit):
         testbed.main(["run", "--out", str(tmp_path / "o"), "--suites", "sim,nope"])
     assert "unknown suite(s) nope" in capsys.readouterr().err
+
+
+def test_sweep_rows_best_within_and_worst():
+    cells = []
+    for group, values in (("a", {"": 2.0, "pixel x10": 2.7, "pixel x0.1": 1.9}),
+                          ("b", {"": 5.0, "pixel x10": None, "pixel x0.1": 1.0})):
+        for variant, v in values.items():
+            cells.append(dict(_cell("sweep", f"{group} {variant or 'default'}", v), group=group, variant=variant))
+    s = testbed.summarize(cells)["sweep"]
+    a, b = s["rows"]
+    assert a["best"] == pytest.approx(1.9) and a["within"] == 2 and a["worst"] == "pixel x10"
+    assert a["worst_ratio"] == pytest.approx(2.7 / 1.9)
+    assert b["best"] is None and b["within"] is None  # a run missing: no verdict on the drive
+    assert s["rows_all_within"] == 0 and s["missing"] == 1
+    assert s["value"] == pytest.approx((2.0 * 2.7 * 1.9 * 5.0 * 1.0) ** 0.2)
+    report = testbed.render_report(_result(cells))
+    assert "| a | 1.90 | 2 of 3 | pixel x10 (1.42) |" in report
+    assert "| a | pixel | 1.90 | n/a | 2.00 | n/a | 2.70 |" in report
+    assert "every run within 1.3x of their best: 0 of 2" in report
+
+
+def test_variant_config_replaces_or_adds_the_prior():
+    base = "; mine\n[noise]\npixel = 0.8 ; measured\nlinear_velocity=0.2\n[landmarks]\nfirst_sight_below = 0\n"
+    out = testbed.variant_config(base, "pixel", 8.0)
+    assert "pixel = 8\n" in out and "0.8" not in out and out.count("pixel") == 1
+    assert "linear_velocity=0.2" in out and "first_sight_below = 0" in out
+    out = testbed.variant_config(base, "angular_velocity", 0.005)
+    assert out.endswith("[noise]\nangular_velocity = 0.005\n") and "pixel = 0.8" in out
+    assert testbed.variant_config("", "pixel", 15.0) == "\n[noise]\npixel = 15\n"
+
+
+def test_sweep_configs_scale_the_prior_in_use(tmp_path):
+    """The sweep's configuration files scale what vislam-run would use: its default, or --config's."""
+    bin_dir = _build_bin()
+    assert testbed.configured_noise(str(bin_dir), None) == pytest.approx(
+        {"linear_velocity": 0.5, "angular_velocity": 0.05, "pixel": 1.5})
+    mine = tmp_path / "mine.ini"
+    mine.write_text("[noise]\npixel = 0.5\n")
+    assert testbed.configured_noise(str(bin_dir), str(mine))["pixel"] == pytest.approx(0.5)
+    plan = testbed.Plan(str(bin_dir), str(tmp_path), str(tmp_path / "logs"), str(REPO / "tools"))
+    plan.cells = [testbed.Cell("sweep", "x", "x", "kitti", "", variant="pixel x10")]
+    paths = testbed._variant_configs(plan, str(tmp_path / "out"), str(mine))
+    assert open(paths["pixel x10"]).read() == "[noise]\npixel = 5\n"

@@ -16,6 +16,9 @@ Suites:
   realistic   vislam-sim --realistic --steps 1100, densities 70/20/6/3 (caps 95/28/9/5) x
               velocities clean/0.1x/1x x seeds 1,2,3; a cell is the mean of its 3 seeds.
   starts      0027 as given from steps 0, 75, ..., 525 (npz2lcm --start-step), against KITTI 07.
+  sweep       each noise prior (linear and angular velocity, pixel) x0.1, x0.3, x3, x10, one at a
+              time, on 0027 given and clean at K {1,5,10,20}: per drive the best of its 13 runs and
+              how many are within 1.3x of it. (104 cells)
 """
 
 import argparse
@@ -36,8 +39,8 @@ from .evaluate import evaluate_against_gt
 from .trajio import read_tum
 
 REPO_ROOT = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
-SUITES = ("conditions", "grid", "sim", "realistic", "starts")
-DATA_SUITES = ("conditions", "grid", "starts")
+SUITES = ("conditions", "grid", "sim", "realistic", "starts", "sweep")
+DATA_SUITES = ("conditions", "grid", "starts", "sweep")
 GT_0027 = os.path.join("gt", "kitti_odometry_07.txt")
 
 # 0027's velocity conditions, as tools/bench.sh --section conditions makes them:
@@ -70,6 +73,13 @@ REALISTIC_SEEDS = (1, 2, 3)
 REALISTIC_STEPS = 1100
 REALISTIC_SUMMARY_NOISES = ("clean", "1x")  # the README's "realistic, 8 cells"
 STARTS = (0, 75, 150, 225, 300, 375, 450, 525)
+# The noise sweep: the [noise] priors, each scaled alone from the value in use (the build's default
+# or --config's), on 0027 with all tracks (issue 6's sweep) and with fewer (sparse trackers).
+SWEEP_KEYS = ("linear_velocity", "angular_velocity", "pixel")
+SWEEP_FACTORS = (0.1, 0.3, 3.0, 10.0)
+SWEEP_VELOCITIES = ("given", "clean")
+SWEEP_KS = (1, 5, 10, 20)
+SWEEP_WITHIN = 1.3
 UNCHANGED_M = 1e-6  # compare: a cell within this many metres of its old value is unchanged
 TOP_MOVES = 8
 
@@ -111,7 +121,8 @@ class Cell:
     truth: str  # KITTI file, TUM file, or the run key of the pseudo-truth
     calib: str = ""
     dr: bool = False
-    group: str = ""  # realistic: the cell whose seeds are averaged
+    group: str = ""  # realistic: the cell whose seeds are averaged; sweep: the drive
+    variant: str = ""  # sweep: "KEY xF", one [noise] prior scaled; "" = the configuration as given
     vislam_ate: float = None
     dr_ate: float = None
     obs_per_frame: float = None
@@ -253,6 +264,21 @@ class Plan:
                     self.cells.append(Cell("realistic", log, log, "tum", self.logs[log].truth, dr=True,
                                            group=f"d{label} {noise}"))
 
+    def add_sweep(self):
+        ok, missing = self.has_0027()
+        if not ok:
+            self.notes.append(f"sweep: skipped: missing {', '.join(missing)}")
+            return
+        variants = [""] + [f"{key} x{f:g}" for key in SWEEP_KEYS for f in SWEEP_FACTORS]
+        for v in SWEEP_VELOCITIES:
+            for k in SWEEP_KS:
+                log = self._0027(v, k, 1)
+                for variant in variants:
+                    self.cells.append(Cell("sweep", f"{log} {variant or 'default'}", log, "kitti",
+                                           os.path.join(self.data_dir, GT_0027),
+                                           calib=os.path.join(self.data_dir, "0027.npz"), group=log,
+                                           variant=variant))
+
     def add_starts(self):
         npz = os.path.join(self.data_dir, "0027.npz")
         ok, missing = self.has_0027()
@@ -334,7 +360,7 @@ def log_commands(spec):
 
 
 def run_argv(bin_dir, log_path, mode, out_dir, key, config):
-    """vislam-run's command line for one run (mode "slam" or "dr") and its outputs."""
+    """vislam-run's command line for one run (mode "slam" or "dr") and its outputs; key names them."""
     traj = os.path.join(out_dir, "runs", f"{key}_{mode}.tum")
     stats = os.path.join(out_dir, "runs", f"{key}_{mode}.stats.json")
     argv = [os.path.join(bin_dir, "vislam-run"), log_path, "--trajectory", traj, "--quiet"]
@@ -378,6 +404,66 @@ def _obs_per_frame(stats_path):
         return None
 
 
+def configured_noise(bin_dir, config):
+    """The [noise] priors vislam-run uses with this configuration (its --print-config): key -> value."""
+    argv = [os.path.join(bin_dir, "vislam-run"), "--print-config"] + (["--config", config] if config else [])
+    try:
+        res = subprocess.run(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    except OSError as exc:
+        raise ToolError(f"cannot run {argv[0]}: {exc.strerror}") from exc
+    if res.returncode != 0:
+        raise ToolError(f"{' '.join(argv)} failed: {_last_line(res.stderr)}")
+    values, section = {}, ""
+    for line in res.stdout.splitlines():
+        line = line.split(";", 1)[0].split("#", 1)[0].strip()
+        if line.startswith("[") and line.endswith("]"):
+            section = line[1:-1].strip()
+        elif "=" in line and section == "noise":
+            key, value = (t.strip() for t in line.split("=", 1))
+            values[key] = value
+    missing = [k for k in SWEEP_KEYS if k not in values]
+    if missing:
+        raise ToolError(f"vislam-run --print-config names no [noise] {', '.join(missing)}")
+    return {k: float(values[k]) for k in SWEEP_KEYS}
+
+
+def variant_config(base_text, key, value):
+    """An INI text: base_text (the user's configuration, may be empty) with [noise] KEY set to value,
+    replacing the user's own line for it (vislam-run refuses a key set twice)."""
+    lines, section, done = [], "", False
+    for line in base_text.splitlines():
+        bare = line.split(";", 1)[0].split("#", 1)[0].strip()
+        if bare.startswith("[") and bare.endswith("]"):
+            section = bare[1:-1].strip()
+        elif section == "noise" and "=" in bare and bare.split("=", 1)[0].strip() == key:
+            line, done = f"{key} = {value:.10g}", True
+        lines.append(line)
+    if not done:
+        lines += ["", "[noise]", f"{key} = {value:.10g}"]
+    return "\n".join(lines) + "\n"
+
+
+def _variant_configs(plan, out_dir, config):
+    """variant -> configuration file for the sweep's cells (written to OUT/configs)."""
+    variants = sorted({c.variant for c in plan.cells if c.variant})
+    if not variants:
+        return {}
+    noise = configured_noise(plan.bin_dir, config)
+    base = ""
+    if config:
+        with open(config) as f:
+            base = f.read()
+    os.makedirs(os.path.join(out_dir, "configs"), exist_ok=True)
+    paths = {}
+    for variant in variants:
+        key, factor = variant.split(" x")
+        path = os.path.join(out_dir, "configs", f"{key}_x{factor}.ini")
+        with open(path, "w") as f:
+            f.write(variant_config(base, key, noise[key] * float(factor)))
+        paths[variant] = path
+    return paths
+
+
 def execute_plan(plan, out_dir, config=None, jobs=2, warn=None, build_dir=None):
     """Make the missing logs, run every cell, measure. Returns the list of commands.sh lines.
     Nothing raises for a failed run: the cell keeps None and a note, and warn(text) is called."""
@@ -415,38 +501,44 @@ def execute_plan(plan, out_dir, config=None, jobs=2, warn=None, build_dir=None):
                 failed_logs[spec.name] = err
                 warn(f"log {spec.name} not made: {err}")
 
-    # 2. runs: one vislam-run per (log, mode); a pseudo-truth is the slam run of its full-density log
-    runs = {}  # (log, mode) -> (argv, traj, stats)
+    # 2. runs: one vislam-run per (log, mode, variant); a pseudo-truth is the slam run of its
+    # full-density log; a sweep variant runs with its own configuration file
+    configs = _variant_configs(plan, out_dir, config)
+    runs = {}  # (log, mode, variant) -> (argv, traj, stats)
     for c in plan.cells:
-        wanted = [(c.log, "slam")] + ([(c.log, "dr")] if c.dr else [])
+        wanted = [(c.log, "slam", c.variant)] + ([(c.log, "dr", "")] if c.dr else [])
         if c.truth_kind == "pseudo":
-            wanted.append((c.truth, "slam"))
-        for log, mode in wanted:
-            if (log, mode) not in runs:
-                runs[(log, mode)] = run_argv(plan.bin_dir, plan.logs[log].path, mode, out_dir, log, config)
+            wanted.append((c.truth, "slam", ""))
+        for log, mode, variant in wanted:
+            if (log, mode, variant) not in runs:
+                key = log + ("__" + variant.replace(" ", "_") if variant else "")
+                runs[(log, mode, variant)] = run_argv(plan.bin_dir, plan.logs[log].path, mode, out_dir, key,
+                                                      configs.get(variant, config))
     cmds += ["", "# ---- vislam-run (dr: dead reckoning, --mode imu_only)"]
     todo_runs = [k for k in runs if k[0] not in failed_logs]
     cmds += [_quote(runs[k][0]) for k in todo_runs]
     failed_runs = {k: f"no log ({failed_logs[k[0]]})" for k in runs if k[0] in failed_logs}
+    if configs:
+        cmds.append("# (each --config under configs/ is the configuration in use with one [noise] prior scaled)")
     with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
         results = pool.map(lambda k: _run_once(runs[k][0], runs[k][1]), todo_runs)
         for key, err in zip(todo_runs, results):
             if err:
                 failed_runs[key] = err
-                warn(f"run {key[0]} ({key[1]}) failed: {err}")
+                warn(f"run {key[0]} ({key[1]}{', ' + key[2] if key[2] else ''}) failed: {err}")
 
     # 3. the ATE of every cell, in-process
     cmds += ["", "# ---- ATE (in-process; the same figures as these commands)"]
     for c in plan.cells:
         truth = {"kitti": c.truth, "tum": c.truth}.get(c.truth_kind)
         if c.truth_kind == "pseudo":
-            truth = runs[(c.truth, "slam")][1]
-            if (c.truth, "slam") in failed_runs:
-                c.notes.append(f"no pseudo-truth: {failed_runs[(c.truth, 'slam')]}")
+            truth = runs[(c.truth, "slam", "")][1]
+            if (c.truth, "slam", "") in failed_runs:
+                c.notes.append(f"no pseudo-truth: {failed_runs[(c.truth, 'slam', '')]}")
                 warn(f"{c.suite}/{c.name}: no pseudo-truth, so n/a")
                 continue
         for mode in ("slam", "dr") if c.dr else ("slam",):
-            key = (c.log, mode)
+            key = (c.log, mode, c.variant if mode == "slam" else "")
             traj = runs[key][1]
             ev = ["tools/evaluate", "ate", "--estimate", traj, "--gt", truth]
             ev += ["--calib", c.calib] if c.calib else []
@@ -505,6 +597,27 @@ def realistic_cell_means(cells):
     return out
 
 
+def sweep_rows(cells):
+    """The sweep suite's drives (one per group), each with its runs, the best of them, how many are
+    within SWEEP_WITHIN of it, and the worst one's name and ratio to the best. A drive with a run
+    missing has no best (None): the criterion is over all of its runs."""
+    groups = {}
+    for c in cells:
+        groups.setdefault(c["group"], []).append(c)
+    rows = []
+    for group, members in groups.items():
+        values = {m.get("variant") or "": m.get("vislam_ate") for m in members}
+        row = {"group": group, "runs": len(members), "values": values, "best": None, "within": None,
+               "worst": None, "worst_ratio": None}
+        if all(v is not None for v in values.values()):
+            best = min(values.values())
+            worst = max(values, key=lambda k: values[k])
+            row.update(best=best, within=sum(1 for v in values.values() if v <= SWEEP_WITHIN * best),
+                       worst=worst or "default", worst_ratio=values[worst] / best if best > 0 else None)
+        rows.append(row)
+    return rows
+
+
 def summarize(cells):
     """Per suite: its summary figure ("value"), what the figure is, the cells and the missing ones."""
     by_suite = {}
@@ -537,6 +650,12 @@ def summarize(cells):
         elif suite == "starts":
             s["figure"] = "mean of vislam ATE (m)"
             s["value"] = mean(values)
+        elif suite == "sweep":
+            rows = sweep_rows(cs)
+            s["figure"] = "geometric mean of vislam ATE (m)"
+            s["value"] = geometric_mean(values)
+            s["rows"] = rows
+            s["rows_all_within"] = sum(1 for r in rows if r["within"] is not None and r["within"] == r["runs"])
         summary[suite] = s
     return summary
 
@@ -551,6 +670,9 @@ def _summary_note(suite, s):
         notes.append(f"vislam worse than dead reckoning in {s['worse_than_dr']} of {s['compared_with_dr']}")
     if suite == "realistic":
         notes.append(f"{s['summary_cells'] - s['summary_cells_missing']} of {s['summary_cells']} cell means")
+    if suite == "sweep":
+        notes.append(f"drives with every run within {SWEEP_WITHIN:g}x of their best: {s['rows_all_within']} of "
+                     f"{len(s['rows'])}")
     if s["missing"]:
         notes.append(f"**{s['missing']} cell(s) n/a**")
     return "; ".join(notes)
@@ -572,7 +694,9 @@ def render_report(result):
     for suite, s in result["summary"].items():
         cs = [c for c in result["cells"] if c["suite"] == suite]
         out += [f"## {suite}", ""]
-        if suite == "realistic":
+        if suite == "sweep":
+            out += _sweep_tables(s["rows"])
+        elif suite == "realistic":
             out += ["| cell | obs/frame | DR (mean) | vislam (mean) | vislam per seed |", "|---|---|---|---|---|"]
             for m in s["cell_means"]:
                 seeds = " / ".join(_fmt(v) for v in m["per_seed"])
@@ -588,6 +712,24 @@ def render_report(result):
                            + (f" {_fmt(c.get('dr_ate'))} |" if with_dr else "") + f" {_fmt(c.get('vislam_ate'))} |")
         out.append("")
     return "\n".join(out)
+
+
+def _sweep_tables(rows):
+    """The sweep as Markdown: per drive its best run and the runs within 1.3x of it, then each
+    prior's row of ATE at x0.1, x0.3, as configured, x3, x10."""
+    factors = [f for f in SWEEP_FACTORS if f < 1] + [1.0] + [f for f in SWEEP_FACTORS if f > 1]
+    out = [f"| drive | best | within {SWEEP_WITHIN:g}x of it | worst (its ratio to the best) |", "|---|---|---|---|"]
+    for r in rows:
+        out.append(f"| {r['group']} | {_fmt(r['best'], 2)} | "
+                   + ("n/a" if r["within"] is None else f"{r['within']} of {r['runs']}")
+                   + f" | {r['worst'] or 'n/a'} ({_fmt(r['worst_ratio'], 2)}) |")
+    out += ["", "| drive | prior | " + " | ".join("configured" if f == 1 else f"x{f:g}" for f in factors) + " |",
+            "|---|---|" + "---|" * len(factors)]
+    for r in rows:
+        for key in SWEEP_KEYS:
+            cells = [r["values"].get("" if f == 1 else f"{key} x{f:g}") for f in factors]
+            out.append(f"| {r['group']} | {key} | " + " | ".join(_fmt(v, 2) for v in cells) + " |")
+    return out
 
 
 # ---- compare ------------------------------------------------------------------------------------
@@ -719,7 +861,7 @@ def cmd_run(args):
     for note in plan.notes:
         print(f"testbed: note: {note}", file=sys.stderr)
     cmds = execute_plan(plan, out_dir, config, args.jobs)
-    cells = [{"suite": c.suite, "name": c.name, "group": c.group, "truth_kind": c.truth_kind,
+    cells = [{"suite": c.suite, "name": c.name, "group": c.group, "variant": c.variant, "truth_kind": c.truth_kind,
               "truth": c.truth, "dr": c.dr, "vislam_ate": c.vislam_ate, "dr_ate": c.dr_ate,
               "obs_per_frame": c.obs_per_frame, "log": plan.logs[c.log].path, "notes": c.notes}
              for c in plan.cells]
