@@ -15,6 +15,17 @@
 #define NEES_STEPS 150
 #define NEES_SKIP 10 /* the first steps carry almost no uncertainty to compare with */
 
+/* Under the sanitizers a dense drive runs about 30x slower (the two dense NEES tests took 4 of the
+ * sanitizer step's 5 minutes in this file on two cores). The tests marked with this repeat the
+ * first dense test's code paths with other noise values; their figures are deterministic and the
+ * plain build checks them. */
+#ifdef VL_TEST_SANITIZED
+#define SKIP_UNDER_SANITIZERS() \
+    TEST_IGNORE_MESSAGE("dense statistics repeated with other noise values: the plain build checks them")
+#else
+#define SKIP_UNDER_SANITIZERS() ((void)0)
+#endif
+
 static vl_estimator_t est;
 static vl_sim_t sim;
 static vl_stereo_frame_t frame;
@@ -208,6 +219,7 @@ void test_slam_is_consistent_on_a_sparse_drive(void)
 
 void test_slam_is_consistent_with_noisier_velocities(void)
 {
+    SKIP_UNDER_SANITIZERS();
     check_nees("velocity noise x3", 1.0, 3.0);
 }
 
@@ -385,12 +397,11 @@ void test_realistic_sparse_drives_with_noisy_velocities_do_no_harm(void)
  * The sparsest realistic drive: about 3 observations per frame (the simulator's
  * realistic conditions capped at 5) and clean velocities, whose only error is the
  * simulator's constant angular offset. With so few observations a frame often has
- * no two that agree, and single seeds swing by tens of metres with any change of
- * which observations are used (or on another CPU's last digits): over seeds 1 to 8,
- * one does harm (seed 1: 26.93 against 24.47 m; 23.69 m with the velocity matching's
- * log bias left in, 35.94 m before the pixel noise samples were capped). So: no more
- * than one seed of the eight, and less error than dead reckoning over the eight
- * together (163.6 against 306.7 m).
+ * no two that agree, and a single seed swings by metres with any change of which
+ * observations are used (or on another CPU's last digits): the closest of seeds 1
+ * to 8 is seed 3, 29.0 against 39.0 m. So: no more than one seed of the eight does
+ * harm, and the eight together have less error than dead reckoning (107.0 against
+ * 306.7 m).
  */
 void test_realistic_sparsest_clean_drive_does_no_harm(void)
 {
