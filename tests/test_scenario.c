@@ -15,10 +15,10 @@
 #define NEES_STEPS 150
 #define NEES_SKIP 10 /* the first steps carry almost no uncertainty to compare with */
 
-/* Under the sanitizers a dense drive runs about 30x slower (the dense drives took 4.5 of the
- * sanitizer step's 5 minutes in this file on a 2-core AVX2 host). The tests marked with this
- * repeat the first dense test's code paths with other noise values; their figures are
- * deterministic and the plain build checks them. */
+/* Under the sanitizers a dense drive runs about 30x slower: of this file's 5 minutes there on a
+ * 2-core AVX2 host, its dense drives took 4.5. The tests marked with this repeat the first dense
+ * test's code paths with other noise values; their figures are deterministic and the plain build
+ * checks them. */
 #ifdef VL_TEST_SANITIZED
 #define SKIP_UNDER_SANITIZERS() \
     TEST_IGNORE_MESSAGE("dense drives with other noise values: the plain build checks them")
