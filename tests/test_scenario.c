@@ -20,8 +20,7 @@
  * test's code paths with other noise values; their figures are deterministic and the plain build
  * checks them. */
 #ifdef VL_TEST_SANITIZED
-#define SKIP_UNDER_SANITIZERS() \
-    TEST_IGNORE_MESSAGE("dense drives with other noise values: the plain build checks them")
+#define SKIP_UNDER_SANITIZERS() TEST_IGNORE_MESSAGE("dense drives with other noise values: the plain build checks them")
 #else
 #define SKIP_UNDER_SANITIZERS() ((void)0)
 #endif
