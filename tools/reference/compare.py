@@ -25,6 +25,7 @@ import numpy as np
 from vislam_tools import ToolError
 from vislam_tools.geometry import so3_log
 from vislam_tools.trajio import read_tum
+from vislam_tools.vislam_config import read_config
 
 from . import vl_reference
 
@@ -91,7 +92,7 @@ def main(argv=None):
             opts += ["--preset", a.preset]
         if a.config:
             opts += ["--config", a.config]
-        cfg = vl_reference.read_config(vislam_run, a.preset if a.preset != "default" else None, a.config,
+        cfg = read_config(vislam_run, a.preset if a.preset != "default" else None, a.config,
                                        a.max_landmarks)
         for s in a.set:
             _override(cfg, s)

@@ -18,9 +18,7 @@ l_i = exp(phi) l_hat_i + J_l(phi) rho_i; the covariance P is (12 + 3N) square. L
 block starts at column 12 + 3 i.
 """
 
-import configparser
 import math
-import subprocess
 import time
 from dataclasses import dataclass, field
 
@@ -299,34 +297,6 @@ def sample_velocity(held, held_utime, new, state_utime, utime, interpolate):
     middle = 0.5 * (float(state_utime - held_utime) + span)
     w = middle / span if span > 0.0 else 1.0
     return held + w * (new - held), (1.0 - w) * (1.0 - w) + w * w
-
-
-# ------------------------------------------------------------------------------------- configuration
-
-def read_config(vislam_run, preset=None, config_file=None, max_landmarks=None):
-    """The configuration vislam-run would use, from its own --print-config (one definition)."""
-    cmd = [str(vislam_run), "--print-config"]
-    if preset:
-        cmd += ["--preset", preset]
-    if config_file:
-        cmd += ["--config", str(config_file)]
-    if max_landmarks:
-        cmd += ["--max-landmarks", str(max_landmarks)]
-    text = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
-    ini = configparser.ConfigParser(inline_comment_prefixes=("#", ";"))
-    ini.read_string(text)
-    cfg = {}
-    for section in ini.sections():
-        if section == "calibration":
-            continue
-        for key, value in ini[section].items():
-            if value in ("true", "false"):
-                cfg[key] = value == "true"
-            elif key == "mode":
-                cfg[key] = value
-            else:
-                cfg[key] = float(value)
-    return cfg
 
 
 # ------------------------------------------------------------------------------------- the filter

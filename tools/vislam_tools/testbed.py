@@ -35,8 +35,10 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 from . import ToolError, cli
+from .bench_report import _fmt
 from .evaluate import evaluate_against_gt
 from .trajio import read_tum
+from .vislam_config import read_config
 
 REPO_ROOT = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 SUITES = ("conditions", "grid", "sim", "realistic", "starts", "sweep")
@@ -405,26 +407,17 @@ def _obs_per_frame(stats_path):
 
 
 def configured_noise(bin_dir, config):
-    """The [noise] priors vislam-run uses with this configuration (its --print-config): key -> value."""
-    argv = [os.path.join(bin_dir, "vislam-run"), "--print-config"] + (["--config", config] if config else [])
+    """The [noise] priors vislam-run uses with this configuration: key -> value."""
     try:
-        res = subprocess.run(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        values = read_config(os.path.join(bin_dir, "vislam-run"), config_file=config)
     except OSError as exc:
-        raise ToolError(f"cannot run {argv[0]}: {exc.strerror}") from exc
-    if res.returncode != 0:
-        raise ToolError(f"{' '.join(argv)} failed: {_last_line(res.stderr)}")
-    values, section = {}, ""
-    for line in res.stdout.splitlines():
-        line = line.split(";", 1)[0].split("#", 1)[0].strip()
-        if line.startswith("[") and line.endswith("]"):
-            section = line[1:-1].strip()
-        elif "=" in line and section == "noise":
-            key, value = (t.strip() for t in line.split("=", 1))
-            values[key] = value
+        raise ToolError(f"cannot run vislam-run in {bin_dir}: {exc.strerror}") from exc
+    except subprocess.CalledProcessError as exc:
+        raise ToolError(f"vislam-run --print-config failed: {_last_line(exc.stderr)}") from exc
     missing = [k for k in SWEEP_KEYS if k not in values]
     if missing:
         raise ToolError(f"vislam-run --print-config names no [noise] {', '.join(missing)}")
-    return {k: float(values[k]) for k in SWEEP_KEYS}
+    return {k: values[k] for k in SWEEP_KEYS}
 
 
 def variant_config(base_text, key, value):
@@ -658,10 +651,6 @@ def summarize(cells):
             s["rows_all_within"] = sum(1 for r in rows if r["within"] is not None and r["within"] == r["runs"])
         summary[suite] = s
     return summary
-
-
-def _fmt(x, digits=3):
-    return "n/a" if x is None else f"{x:.{digits}f}"
 
 
 def _summary_note(suite, s):
