@@ -17,7 +17,9 @@
 #   VL_MAX_LANDMARKS  passed as -DVL_MAX_LANDMARKS=...
 #   UNITY_ROOT        use this Unity tree (-DUNITY_ROOT=...) and fetch nothing
 #   CTEST_TIMEOUT     default per-test timeout in seconds (default 600)
-#   CTEST_PARALLEL_LEVEL, VENV_DIR, VL_PYTHON, REQUIREMENTS, VL_SKIP_APT: see tools/setup.sh
+#   CTEST_PARALLEL_LEVEL tests CTest runs at once (default JOBS; each test has its own network
+#                     namespace and directories, so they do not meet)
+#   VENV_DIR, VL_PYTHON, REQUIREMENTS, VL_SKIP_APT: see tools/setup.sh
 #   VL_SANITIZE_STAGE 0 skips the sanitizer build and its CTest (default 1)
 #   SANITIZE_BUILD_DIR its build directory (default build-asan); VL_SANITIZE its sanitizers
 #                     (default address,undefined)
@@ -40,6 +42,7 @@ BUILD_DIR="${BUILD_DIR:-build}"
 case "$BUILD_DIR" in /*) ;; *) BUILD_DIR="$REPO_ROOT/$BUILD_DIR" ;; esac
 BUILD_TYPE="${BUILD_TYPE:-Release}"
 JOBS="${JOBS:-2}"
+CTEST_JOBS="${CTEST_PARALLEL_LEVEL:-$JOBS}"
 VENV_DIR="${VENV_DIR:-$REPO_ROOT/.venv}"
 export VENV_DIR
 RESULTS_DIR="$BUILD_DIR/test-results"
@@ -142,7 +145,7 @@ mkdir -p "$RESULTS_DIR"
 
 step "CTest"
 ctest_rc=0
-(cd "$BUILD_DIR" && ctest --output-on-failure --timeout "${CTEST_TIMEOUT:-600}" \
+(cd "$BUILD_DIR" && ctest -j "$CTEST_JOBS" --output-on-failure --timeout "${CTEST_TIMEOUT:-600}" \
   --output-junit "$RESULTS_DIR/ctest.xml") 2>&1 | tee "$RESULTS_DIR/ctest.log" || ctest_rc=$?
 
 read -r ct_passed ct_failed ct_skipped <<<"$(ctest_counts "$RESULTS_DIR/ctest.xml" "$ctest_rc")"
@@ -199,7 +202,8 @@ else
     (cd "$SANITIZE_BUILD_DIR" && \
       ASAN_OPTIONS="${ASAN_OPTIONS:-detect_leaks=1}" \
       UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}" \
-      ctest --output-on-failure --timeout "${CTEST_TIMEOUT:-600}" --output-junit "$RESULTS_DIR/ctest-sanitize.xml") \
+      ctest -j "$CTEST_JOBS" --output-on-failure --timeout "${CTEST_TIMEOUT:-600}" \
+        --output-junit "$RESULTS_DIR/ctest-sanitize.xml") \
       2>&1 | tee "$san_log" || san_rc=$?
     read -r san_passed san_failed san_skipped <<<"$(ctest_counts "$RESULTS_DIR/ctest-sanitize.xml" "$san_rc")"
   else
