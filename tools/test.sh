@@ -230,12 +230,20 @@ elif ! UNITY_ROOT="$VL_UNITY_ROOT" JOBS="$JOBS" bash "$REPO_ROOT/tools/fuzz.sh" 
   tail -n 40 "$RESULTS_DIR/fuzz-build.log"
 else
   echo "built (output: $RESULTS_DIR/fuzz-build.log)"
+  # The harnesses fuzz at the same time, one per CPU (each writes only under its own name), so
+  # each still gets its FUZZ_SECONDS of a CPU; their reports are printed in order afterwards.
+  fz_pids=()
   for h in "${fz_harnesses[@]}"; do
-    if bash "$REPO_ROOT/tools/fuzz.sh" --no-build --seconds "$FUZZ_SECONDS" "$h"; then
+    bash "$REPO_ROOT/tools/fuzz.sh" --no-build --seconds "$FUZZ_SECONDS" "$h" >"$RESULTS_DIR/fuzz-$h.out" 2>&1 &
+    fz_pids+=($!)
+  done
+  for i in "${!fz_harnesses[@]}"; do
+    if wait "${fz_pids[$i]}"; then
       fz_passed=$((fz_passed + 1))
     else
       fz_rc=1 fz_failed=$((fz_failed + 1))
     fi
+    cat "$RESULTS_DIR/fuzz-${fz_harnesses[$i]}.out"
   done
 fi
 printf -- '---- done: %s (%ds)\n' "$STEP_NAME" "$((SECONDS - STEP_START))"
