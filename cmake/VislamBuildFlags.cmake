@@ -14,7 +14,12 @@ endif()
 # Sanitizers apply to every target, so the tests exercise the same code they do in a plain build.
 # The heap-allocation counters (test_alloc, the daemon test's LD_PRELOAD counter) replace malloc,
 # which AddressSanitizer owns: under ASan they are left out (VL_ASAN), and the plain build runs them.
+# VL_INSTRUMENTED: any sanitizer or the fuzzing build, where the code runs many times slower.
 set(VL_ASAN OFF)
+set(VL_INSTRUMENTED OFF)
+if(VL_FUZZ OR NOT VL_SANITIZE STREQUAL "")
+  set(VL_INSTRUMENTED ON)
+endif()
 if(VL_FUZZ)
   if(NOT CMAKE_C_COMPILER_ID MATCHES "Clang" OR NOT CMAKE_CXX_COMPILER_ID MATCHES "Clang")
     message(FATAL_ERROR "VL_FUZZ=ON needs clang (libFuzzer): configure with CC=clang CXX=clang++")

@@ -92,8 +92,7 @@ def main(argv=None):
             opts += ["--preset", a.preset]
         if a.config:
             opts += ["--config", a.config]
-        cfg = read_config(vislam_run, a.preset if a.preset != "default" else None, a.config,
-                                       a.max_landmarks)
+        cfg = read_config(vislam_run, a.preset if a.preset != "default" else None, a.config, a.max_landmarks)
         for s in a.set:
             _override(cfg, s)
         with tempfile.TemporaryDirectory() as tmp:

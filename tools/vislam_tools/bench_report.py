@@ -47,7 +47,8 @@ def _rows(path):
     return rows
 
 
-def _fmt(x, digits=3):
+def fmt(x, digits=3):
+    """A figure for the reports' tables: "n/a" for a missing or non-finite value, integers as they are."""
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "n/a"
     if isinstance(x, int):
@@ -73,7 +74,7 @@ def _table(header, rows):
 def _rpe(ate, delta):
     for r in dig(ate, "rpe") or []:
         if r.get("delta") == delta:
-            return f"{_fmt(r.get('trans_rmse'))} / {_fmt(r.get('rot_rmse_deg'), 2)}"
+            return f"{fmt(r.get('trans_rmse'))} / {fmt(r.get('rot_rmse_deg'), 2)}"
     return "n/a"
 
 
@@ -88,10 +89,10 @@ def cmd_ate(args):
         stats = load_json(r[4]) if len(r) > 4 and r[4] else None
         c = dig(stats, "core_counters") or {}
         rows.append([label, data, settings,
-                     _fmt(dig(ate, "ate", "rmse")), _fmt(dig(ate, "ate", "max")),
+                     fmt(dig(ate, "ate", "rmse")), fmt(dig(ate, "ate", "max")),
                      _rpe(ate, 1), _rpe(ate, 10),
-                     _fmt(c.get("observations_used")), _fmt(c.get("observations_gated")),
-                     _fmt(c.get("frames_reassociated")), _fmt(c.get("numerical_failures"))])
+                     fmt(c.get("observations_used")), fmt(c.get("observations_gated")),
+                     fmt(c.get("frames_reassociated")), fmt(c.get("numerical_failures"))])
     print(_table(header, rows))
 
 
@@ -111,8 +112,8 @@ def cmd_starts(args):
         v = [ates.get((label, s)) for s in starts]
         means[label] = sum(v) / len(v) if v and all(x is not None for x in v) else None
     header = ["run", "settings"] + [f"from step {s}" for s in starts] + ["mean ATE (m)"]
-    print(_table(header, [[label, settings[label]] + [_fmt(ates.get((label, s))) for s in starts] +
-                          [_fmt(means[label])] for label in labels]))
+    print(_table(header, [[label, settings[label]] + [fmt(ates.get((label, s))) for s in starts] +
+                          [fmt(means[label])] for label in labels]))
     known = {k: m for k, m in means.items() if m is not None}
     if known:
         best = min(known, key=known.get)
@@ -131,7 +132,7 @@ def cmd_starts(args):
 
 def _timing(stats, fn):
     t = dig(stats, "timing", fn) or {}
-    return [_fmt(t.get(k), 1) for k in ("median_us", "p99_us", "p999_us", "max_us")]
+    return [fmt(t.get(k), 1) for k in ("median_us", "p99_us", "p999_us", "max_us")]
 
 
 def cmd_window(args):
@@ -144,13 +145,13 @@ def cmd_window(args):
 
         def de(s):
             c = dig(s, "core_counters") or {}
-            return f"{_fmt(c.get('landmarks_deferred'))} / {_fmt(c.get('landmarks_evicted'))}"
+            return f"{fmt(c.get('landmarks_deferred'))} / {fmt(c.get('landmarks_evicted'))}"
 
-        rows.append([n, _fmt(dig(ate, "ate", "rmse")), " / ".join(_timing(s34, "vl_update")),
+        rows.append([n, fmt(dig(ate, "ate", "rmse")), " / ".join(_timing(s34, "vl_update")),
                      _timing(s34, "vl_propagate")[0], de(s27), de(s34),
-                     f"{_fmt(dig(s27, 'core_counters', 'observations_deferred'))} / "
-                     f"{_fmt(dig(s34, 'core_counters', 'observations_deferred'))}",
-                     _fmt(dig(s34, "core_counters", "window_peak"))])
+                     f"{fmt(dig(s27, 'core_counters', 'observations_deferred'))} / "
+                     f"{fmt(dig(s34, 'core_counters', 'observations_deferred'))}",
+                     fmt(dig(s34, "core_counters", "window_peak"))])
     print(_table(header, rows))
 
 
@@ -162,7 +163,7 @@ def cmd_timing(args):
     for label, path in _rows(args.rows):
         s = load_json(path)
         n = dig(s, "timing", "vl_update", "count")
-        rows.append([label, _fmt(n)] + _timing(s, "vl_update") + _timing(s, "vl_propagate"))
+        rows.append([label, fmt(n)] + _timing(s, "vl_update") + _timing(s, "vl_propagate"))
         for fn in ("vl_update", "vl_propagate"):
             m = dig(s, "timing", fn, "max_us")
             if m is not None and (worst is None or m > worst[0]):
@@ -316,12 +317,12 @@ def cmd_daemon(args):
         r = load_json(summary) or {}
         a, u = d.get("all", {}), d.get("update", {})
         lat = r.get("latency_us", {})
-        rows.append([label, _fmt(d.get("steps")), _fmt(d.get("budget_us")), _fmt(d.get("overruns")),
-                     " / ".join(_fmt(a.get(k)) for k in ("p50", "p99", "p999", "max")),
-                     " / ".join(_fmt(u.get(k)) for k in ("p99", "max")),
-                     " / ".join(_fmt(lat.get(k)) for k in ("p50", "p99", "max")),
-                     f"{_fmt(r.get('frames_returned'))} of {_fmt(r.get('frames_expected'))}",
-                     f"{_fmt(d.get('alloc_process'))} / {_fmt(d.get('alloc_main'))}"])
+        rows.append([label, fmt(d.get("steps")), fmt(d.get("budget_us")), fmt(d.get("overruns")),
+                     " / ".join(fmt(a.get(k)) for k in ("p50", "p99", "p999", "max")),
+                     " / ".join(fmt(u.get(k)) for k in ("p99", "max")),
+                     " / ".join(fmt(lat.get(k)) for k in ("p50", "p99", "max")),
+                     f"{fmt(r.get('frames_returned'))} of {fmt(r.get('frames_expected'))}",
+                     f"{fmt(d.get('alloc_process'))} / {fmt(d.get('alloc_main'))}"])
     print(_table(header, rows))
 
 
@@ -340,14 +341,14 @@ def cmd_latency(args):
         c = d.get("costliest_step") or {}
         frames = d.get("e2e_frames") or {}
         mflop = [None if w.get(k) is None else w[k] / 1e6 for k in ("p50", "max")]
-        rows.append([label, _fmt(d.get("steps")),
-                     " / ".join(_fmt(st.get(k), 0) for k in ("min", "p50", "p99", "p999", "max")),
-                     " / ".join(_fmt(e2e.get(k), 0) for k in ("p50", "p99", "p999", "max")),
-                     " / ".join(_fmt(lcm.get(k), 0) for k in ("p50", "p99", "max")),
-                     f"{_fmt(frames.get('returned'))} of {_fmt(frames.get('expected'))}",
-                     " / ".join(_fmt(jit.get(k), 0) for k in ("p99", "max")),
-                     _fmt(d.get("overruns")), " / ".join(_fmt(m, 1) for m in mflop),
-                     f"{_fmt(c.get('us_ratio_to_p50'), 2)} / {_fmt(c.get('work_ratio_to_p50'), 2)}"])
+        rows.append([label, fmt(d.get("steps")),
+                     " / ".join(fmt(st.get(k), 0) for k in ("min", "p50", "p99", "p999", "max")),
+                     " / ".join(fmt(e2e.get(k), 0) for k in ("p50", "p99", "p999", "max")),
+                     " / ".join(fmt(lcm.get(k), 0) for k in ("p50", "p99", "max")),
+                     f"{fmt(frames.get('returned'))} of {fmt(frames.get('expected'))}",
+                     " / ".join(fmt(jit.get(k), 0) for k in ("p99", "max")),
+                     fmt(d.get("overruns")), " / ".join(fmt(m, 1) for m in mflop),
+                     f"{fmt(c.get('us_ratio_to_p50'), 2)} / {fmt(c.get('work_ratio_to_p50'), 2)}"])
     print(_table(header, rows))
 
 
@@ -364,19 +365,19 @@ def cmd_soak(args):
         returned += r.get("frames_returned") or 0
         if rss_kb.isdigit():
             rss.append(int(rss_kb))
-        rows.append([loop, log, _fmt(r.get("log_s"), 1), f"{_fmt(r.get('frames_returned'))} of "
-                     f"{_fmt(r.get('frames_expected'))}", " / ".join(_fmt(lat.get(k)) for k in ("p99", "max")),
+        rows.append([loop, log, fmt(r.get("log_s"), 1), f"{fmt(r.get('frames_returned'))} of "
+                     f"{fmt(r.get('frames_expected'))}", " / ".join(fmt(lat.get(k)) for k in ("p99", "max")),
                      rss_kb, rc])
     print(_table(header, rows))
     d = _daemon_summary(args.log)
     print()
     print(f"Sensor time {sensor_s:.0f} s ({sensor_s / 3600:.2f} h) in {len(loops)} replays; frames answered "
           f"{returned} of {expected} ({expected - returned} without a pose, at the timeline switches); "
-          f"daemon RSS after the first replay {_fmt(rss[0] if rss else None)} KiB, after the last "
-          f"{_fmt(rss[-1] if rss else None)} KiB, largest {_fmt(max(rss) if rss else None)} KiB; timeline "
-          f"changes {_fmt(d.get('timeline_changes'))}, divergence resets {_fmt(d.get('divergence_resets'))}; "
-          f"heap allocations after start-up {_fmt(d.get('alloc_process'))} in the process, "
-          f"{_fmt(d.get('alloc_main'))} in the main (estimation) thread.")
+          f"daemon RSS after the first replay {fmt(rss[0] if rss else None)} KiB, after the last "
+          f"{fmt(rss[-1] if rss else None)} KiB, largest {fmt(max(rss) if rss else None)} KiB; timeline "
+          f"changes {fmt(d.get('timeline_changes'))}, divergence resets {fmt(d.get('divergence_resets'))}; "
+          f"heap allocations after start-up {fmt(d.get('alloc_process'))} in the process, "
+          f"{fmt(d.get('alloc_main'))} in the main (estimation) thread.")
 
 
 def _condition_cells(rows_path):
@@ -403,7 +404,7 @@ def _ratio(c):
         return "(reference)"
     if c["dr_ate"] < 1e-3:
         return "(DR exact)"
-    return _fmt(c["vislam_ate"] / c["dr_ate"], 2)
+    return fmt(c["vislam_ate"] / c["dr_ate"], 2)
 
 
 def cmd_conditions(args):
@@ -411,7 +412,7 @@ def cmd_conditions(args):
     header = ["drive", "velocities", "tracks kept", "obs. per frame", "ATE dead reckoning (m)",
               "ATE vislam default (m)", "vislam / DR", "truth"]
     rows = [[c["drive"], c["velocities"], "all" if c["keep_every"] == 1 else f"1 in {c['keep_every']}",
-             _fmt(c["obs_per_frame"], 1), _fmt(c["dr_ate"], 2), _fmt(c["vislam_ate"], 2), _ratio(c),
+             fmt(c["obs_per_frame"], 1), fmt(c["dr_ate"], 2), fmt(c["vislam_ate"], 2), _ratio(c),
              c["truth"]] for c in cells]
     print(_table(header, rows))
     # the same, vislam ATE only, one line per drive and velocities, one column per density
@@ -427,7 +428,7 @@ def cmd_conditions(args):
         row = [drive, vel]
         for k in ks:
             c = by.get((drive, vel, k))
-            row.append("" if c is None else f"{_fmt(c['vislam_ate'], 2)} / {_fmt(c['dr_ate'], 2)}")
+            row.append("" if c is None else f"{fmt(c['vislam_ate'], 2)} / {fmt(c['dr_ate'], 2)}")
         pivot.append(row)
     print()
     print("ATE vislam / dead reckoning (m), by tracks kept:")

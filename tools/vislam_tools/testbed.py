@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 from . import ToolError, cli
-from .bench_report import _fmt
+from .bench_report import fmt
 from .evaluate import evaluate_against_gt
 from .trajio import read_tum
 from .vislam_config import read_config
@@ -678,7 +678,7 @@ def render_report(result):
         out.append("")
     out += ["| suite | figure | value | cells | notes |", "|---|---|---|---|---|"]
     for suite, s in result["summary"].items():
-        out.append(f"| {suite} | {s['figure']} | {_fmt(s['value'])} | {s['cells']} | {_summary_note(suite, s)} |")
+        out.append(f"| {suite} | {s['figure']} | {fmt(s['value'])} | {s['cells']} | {_summary_note(suite, s)} |")
     out.append("")
     for suite, s in result["summary"].items():
         cs = [c for c in result["cells"] if c["suite"] == suite]
@@ -688,17 +688,17 @@ def render_report(result):
         elif suite == "realistic":
             out += ["| cell | obs/frame | DR (mean) | vislam (mean) | vislam per seed |", "|---|---|---|---|---|"]
             for m in s["cell_means"]:
-                seeds = " / ".join(_fmt(v) for v in m["per_seed"])
-                out.append(f"| {m['group']} | {_fmt(m['obs_per_frame'], 1)} | {_fmt(m['dr_ate'])} | "
-                           f"{_fmt(m['vislam_ate'])} | {seeds} |")
+                seeds = " / ".join(fmt(v) for v in m["per_seed"])
+                out.append(f"| {m['group']} | {fmt(m['obs_per_frame'], 1)} | {fmt(m['dr_ate'])} | "
+                           f"{fmt(m['vislam_ate'])} | {seeds} |")
         else:
             with_dr = any(c.get("dr") for c in cs)
             out += ["| cell | truth | obs/frame |" + (" DR |" if with_dr else "") + " vislam |",
                     "|---|---|---|" + ("---|" if with_dr else "") + "---|"]
             for c in cs:
                 truth = {"kitti": "KITTI 07", "tum": "sim truth", "pseudo": "pseudo-truth (K=1 run)"}[c["truth_kind"]]
-                out.append(f"| {c['name']} | {truth} | {_fmt(c.get('obs_per_frame'), 1)} |"
-                           + (f" {_fmt(c.get('dr_ate'))} |" if with_dr else "") + f" {_fmt(c.get('vislam_ate'))} |")
+                out.append(f"| {c['name']} | {truth} | {fmt(c.get('obs_per_frame'), 1)} |"
+                           + (f" {fmt(c.get('dr_ate'))} |" if with_dr else "") + f" {fmt(c.get('vislam_ate'))} |")
         out.append("")
     return "\n".join(out)
 
@@ -709,15 +709,15 @@ def _sweep_tables(rows):
     factors = [f for f in SWEEP_FACTORS if f < 1] + [1.0] + [f for f in SWEEP_FACTORS if f > 1]
     out = [f"| drive | best | within {SWEEP_WITHIN:g}x of it | worst (its ratio to the best) |", "|---|---|---|---|"]
     for r in rows:
-        out.append(f"| {r['group']} | {_fmt(r['best'], 2)} | "
+        out.append(f"| {r['group']} | {fmt(r['best'], 2)} | "
                    + ("n/a" if r["within"] is None else f"{r['within']} of {r['runs']}")
-                   + f" | {r['worst'] or 'n/a'} ({_fmt(r['worst_ratio'], 2)}) |")
+                   + f" | {r['worst'] or 'n/a'} ({fmt(r['worst_ratio'], 2)}) |")
     out += ["", "| drive | prior | " + " | ".join("configured" if f == 1 else f"x{f:g}" for f in factors) + " |",
             "|---|---|" + "---|" * len(factors)]
     for r in rows:
         for key in SWEEP_KEYS:
             cells = [r["values"].get("" if f == 1 else f"{key} x{f:g}") for f in factors]
-            out.append(f"| {r['group']} | {key} | " + " | ".join(_fmt(v, 2) for v in cells) + " |")
+            out.append(f"| {r['group']} | {key} | " + " | ".join(fmt(v, 2) for v in cells) + " |")
     return out
 
 
@@ -760,14 +760,14 @@ def render_compare(result, name_a, name_b):
     out = [f"A: {name_a}", f"B: {name_b}", "",
            "| suite | A | B | B/A | better | worse | unchanged | n/a |", "|---|---|---|---|---|---|---|---|"]
     for suite, r in result.items():
-        out.append(f"| {suite} | {_fmt(r['a'])} | {_fmt(r['b'])} | {_fmt(r['ratio'])} | {r['better']} | "
+        out.append(f"| {suite} | {fmt(r['a'])} | {fmt(r['b'])} | {fmt(r['ratio'])} | {r['better']} | "
                    f"{r['worse']} | {r['unchanged']} | {r['na']} |")
     for suite, r in result.items():
         if not r["moves"]:
             continue
         out += ["", f"{suite}: the cells that moved most", "", "| cell | A | B | B/A |", "|---|---|---|---|"]
         for m in r["moves"]:
-            out.append(f"| {m['name']} | {_fmt(m['a'])} | {_fmt(m['b'])} | {_fmt(math.exp(m['log_ratio']))} |")
+            out.append(f"| {m['name']} | {fmt(m['a'])} | {fmt(m['b'])} | {fmt(math.exp(m['log_ratio']))} |")
     return "\n".join(out)
 
 
