@@ -108,7 +108,7 @@ def test_missing_data_skips_the_data_suites(tmp_path):
     assert {c.suite for c in plan.cells} == {"sim", "realistic"}
     assert len([c for c in plan.cells if c.suite == "sim"]) == 10
     assert len([c for c in plan.cells if c.suite == "realistic"]) == 36
-    assert sum("skipped" in n for n in plan.notes) == 4
+    assert sum("skipped" in n for n in plan.notes) == len(testbed.DATA_SUITES)
 
 
 def test_plan_counts_and_shared_logs(tmp_path):
@@ -118,7 +118,8 @@ def test_plan_counts_and_shared_logs(tmp_path):
         (data / f).write_text("")
     plan = testbed.build_plan(list(testbed.SUITES), str(tmp_path / "bin"), str(data), str(tmp_path / "logs"))
     count = {s: len([c for c in plan.cells if c.suite == s]) for s in testbed.SUITES}
-    assert count == {"conditions": 30, "grid": 31, "sim": 10, "realistic": 36, "starts": 8, "sweep": 104}
+    assert count == {"conditions": 30, "grid": 31, "sim": 10, "realistic": 36, "starts": 8, "sweep": 104,
+                     "sweep_starts": 104}
     names = {c.name for c in plan.cells if c.suite == "conditions"}
     assert "0027_given_x2_K1_s1" in names and "0027_given_x2_K1_s1" in {c.name for c in plan.cells if c.suite == "grid"}
     # 24 + 2 x 4 (with the pseudo-truths' full-density logs) + the grid's 18 new ones + 8 starts + 46
@@ -128,6 +129,10 @@ def test_plan_counts_and_shared_logs(tmp_path):
     assert {c.log for c in sweep} <= {c.log for c in plan.cells if c.suite == "conditions"}
     assert len({c.group for c in sweep}) == 8 and len({c.name for c in sweep}) == 104
     assert sorted({c.variant for c in sweep})[:3] == ["", "angular_velocity x0.1", "angular_velocity x0.3"]
+    # the sweep over the starts runs on the starts' own logs (its default runs are theirs)
+    over_starts = [c for c in plan.cells if c.suite == "sweep_starts"]
+    assert {c.log for c in over_starts} == {c.log for c in plan.cells if c.suite == "starts"}
+    assert {c.variant for c in over_starts} == {c.variant for c in sweep}
 
 
 def _build_bin():
@@ -207,6 +212,26 @@ def test_sweep_rows_best_within_and_worst():
     assert "| a | 1.90 | 2 of 3 | pixel x10 (1.42) |" in report
     assert "| a | pixel | 1.90 | n/a | 2.00 | n/a | 2.70 |" in report
     assert "every run within 1.3x of their best: 0 of 2" in report
+
+
+def test_sweep_over_starts_judges_each_runs_mean():
+    """One start is one drive: a run is judged by its mean over the starts, and a start missing
+    leaves that run's mean (and so the verdict) n/a."""
+    starts = {"": (2.0, 1.0), "pixel x10": (2.0, 4.0), "pixel x0.1": (1.0, 2.0)}
+    cells = [dict(_cell("sweep_starts", f"s{i} {variant or 'default'}", v), group=f"s{i}", variant=variant)
+             for variant, values in starts.items() for i, v in enumerate(values)]
+    s = testbed.summarize(cells)["sweep_starts"]
+    (row,) = s["rows"]
+    assert row["group"] == "0027 given, mean of 2 starts"
+    assert row["values"] == pytest.approx({"": 1.5, "pixel x10": 3.0, "pixel x0.1": 1.5})
+    assert row["best"] == pytest.approx(1.5) and row["within"] == 2 and row["worst"] == "pixel x10"
+    assert s["rows_all_within"] == 0 and s["cells"] == 6
+    assert s["value"] == pytest.approx((2.0 * 1.0 * 2.0 * 4.0 * 1.0 * 2.0) ** (1 / 6))
+    cells[3]["vislam_ate"] = None  # pixel x10 on the second start
+    (row,) = testbed.summarize(cells)["sweep_starts"]["rows"]
+    assert row["values"]["pixel x10"] is None and row["within"] is None
+    report = testbed.render_report(_result(cells))
+    assert "## sweep_starts" in report and "| 0027 given, mean of 2 starts | n/a | n/a |" in report
 
 
 def test_variant_config_replaces_or_adds_the_prior():

@@ -19,6 +19,8 @@ Suites:
   sweep       each noise prior (linear and angular velocity, pixel) x0.1, x0.3, x3, x10, one at a
               time, on 0027 given and clean at K {1,5,10,20}: per drive the best of its 13 runs and
               how many are within 1.3x of it. (104 cells)
+  sweep_starts the same 13 runs on 0027 as given from each of the starts' 8 steps: per run its mean
+              over the starts, the best mean and how many are within 1.3x of it. (104 cells)
 """
 
 import argparse
@@ -41,8 +43,8 @@ from .trajio import read_tum
 from .vislam_config import read_config
 
 REPO_ROOT = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
-SUITES = ("conditions", "grid", "sim", "realistic", "starts", "sweep")
-DATA_SUITES = ("conditions", "grid", "starts", "sweep")
+SUITES = ("conditions", "grid", "sim", "realistic", "starts", "sweep", "sweep_starts")
+DATA_SUITES = ("conditions", "grid", "starts", "sweep", "sweep_starts")
 GT_0027 = os.path.join("gt", "kitti_odometry_07.txt")
 
 # 0027's velocity conditions, as tools/bench.sh --section conditions makes them:
@@ -76,7 +78,8 @@ REALISTIC_STEPS = 1100
 REALISTIC_SUMMARY_NOISES = ("clean", "1x")  # the README's "realistic, 8 cells"
 STARTS = (0, 75, 150, 225, 300, 375, 450, 525)
 # The noise sweep: the [noise] priors, each scaled alone from the value in use (the build's default
-# or --config's), on 0027 with all tracks (issue 6's sweep) and with fewer (sparse trackers).
+# or --config's), on 0027 with all tracks (issue 6's sweep) and with fewer (sparse trackers); and
+# on 0027 as given from the 8 starts, where each run is judged by its mean (one start is one drive).
 SWEEP_KEYS = ("linear_velocity", "angular_velocity", "pixel")
 SWEEP_FACTORS = (0.1, 0.3, 3.0, 10.0)
 SWEEP_VELOCITIES = ("given", "clean")
@@ -266,29 +269,41 @@ class Plan:
                     self.cells.append(Cell("realistic", log, log, "tum", self.logs[log].truth, dr=True,
                                            group=f"d{label} {noise}"))
 
+    def _sweep_cells(self, suite, log):
+        """The 13 sweep runs of one log: as configured, and each prior scaled alone."""
+        variants = [""] + [f"{key} x{f:g}" for key in SWEEP_KEYS for f in SWEEP_FACTORS]
+        for variant in variants:
+            self.cells.append(Cell(suite, f"{log} {variant or 'default'}", log, "kitti",
+                                   os.path.join(self.data_dir, GT_0027),
+                                   calib=os.path.join(self.data_dir, "0027.npz"), group=log, variant=variant))
+
+    def _start_logs(self):
+        npz = os.path.join(self.data_dir, "0027.npz")
+        return [self._npz_log(f"0027_start{k}", npz, start_step=k) for k in STARTS]
+
     def add_sweep(self):
         ok, missing = self.has_0027()
         if not ok:
             self.notes.append(f"sweep: skipped: missing {', '.join(missing)}")
             return
-        variants = [""] + [f"{key} x{f:g}" for key in SWEEP_KEYS for f in SWEEP_FACTORS]
         for v in SWEEP_VELOCITIES:
             for k in SWEEP_KS:
-                log = self._0027(v, k, 1)
-                for variant in variants:
-                    self.cells.append(Cell("sweep", f"{log} {variant or 'default'}", log, "kitti",
-                                           os.path.join(self.data_dir, GT_0027),
-                                           calib=os.path.join(self.data_dir, "0027.npz"), group=log,
-                                           variant=variant))
+                self._sweep_cells("sweep", self._0027(v, k, 1))
+
+    def add_sweep_starts(self):
+        ok, missing = self.has_0027()
+        if not ok:
+            self.notes.append(f"sweep_starts: skipped: missing {', '.join(missing)}")
+            return
+        for log in self._start_logs():
+            self._sweep_cells("sweep_starts", log)
 
     def add_starts(self):
-        npz = os.path.join(self.data_dir, "0027.npz")
         ok, missing = self.has_0027()
         if not ok:
             self.notes.append(f"starts: skipped: missing {', '.join(missing)}")
             return
-        for k in STARTS:
-            log = self._npz_log(f"0027_start{k}", npz, start_step=k)
+        for log in self._start_logs():
             self._kitti_cell("starts", log, log)
 
 
@@ -611,6 +626,19 @@ def sweep_rows(cells):
     return rows
 
 
+def sweep_start_means(cells):
+    """The sweep_starts suite as one drive for sweep_rows: each run's mean over the starts (None when
+    a start is missing)."""
+    by_variant = {}
+    for c in cells:
+        by_variant.setdefault(c.get("variant") or "", []).append(c.get("vislam_ate"))
+    starts = max((len(v) for v in by_variant.values()), default=0)
+    group = f"0027 given, mean of {starts} starts"
+    return [{"group": group, "variant": variant,
+             "vislam_ate": mean(values) if all(v is not None for v in values) else None}
+            for variant, values in by_variant.items()]
+
+
 def summarize(cells):
     """Per suite: its summary figure ("value"), what the figure is, the cells and the missing ones."""
     by_suite = {}
@@ -643,8 +671,8 @@ def summarize(cells):
         elif suite == "starts":
             s["figure"] = "mean of vislam ATE (m)"
             s["value"] = mean(values)
-        elif suite == "sweep":
-            rows = sweep_rows(cs)
+        elif suite in ("sweep", "sweep_starts"):
+            rows = sweep_rows(cs if suite == "sweep" else sweep_start_means(cs))
             s["figure"] = "geometric mean of vislam ATE (m)"
             s["value"] = geometric_mean(values)
             s["rows"] = rows
@@ -659,7 +687,7 @@ def _summary_note(suite, s):
         notes.append(f"vislam worse than dead reckoning in {s['worse_than_dr']} of {s['compared_with_dr']}")
     if suite == "realistic":
         notes.append(f"{s['summary_cells'] - s['summary_cells_missing']} of {s['summary_cells']} cell means")
-    if suite == "sweep":
+    if suite in ("sweep", "sweep_starts"):
         notes.append(f"drives with every run within {SWEEP_WITHIN:g}x of their best: {s['rows_all_within']} of "
                      f"{len(s['rows'])}")
     if s["missing"]:
@@ -683,7 +711,7 @@ def render_report(result):
     for suite, s in result["summary"].items():
         cs = [c for c in result["cells"] if c["suite"] == suite]
         out += [f"## {suite}", ""]
-        if suite == "sweep":
+        if suite in ("sweep", "sweep_starts"):
             out += _sweep_tables(s["rows"])
         elif suite == "realistic":
             out += ["| cell | obs/frame | DR (mean) | vislam (mean) | vislam per seed |", "|---|---|---|---|---|"]
