@@ -214,6 +214,13 @@ class Plan:
                    if not os.path.isfile(p)]
         return not missing, missing
 
+    def need_0027(self, suite):
+        """Whether the suite's 0027 runs can be made; notes the suite as skipped if not."""
+        ok, missing = self.has_0027()
+        if not ok:
+            self.notes.append(f"{suite}: skipped: missing {', '.join(missing)}")
+        return ok
+
     def add_conditions(self):
         ok, missing = self.has_0027()
         if ok:
@@ -235,9 +242,7 @@ class Plan:
                 self.cells.append(Cell("conditions", log, log, "pseudo", full, dr=True))
 
     def add_grid(self):
-        ok, missing = self.has_0027()
-        if not ok:
-            self.notes.append(f"grid: skipped: missing {', '.join(missing)}")
+        if not self.need_0027("grid"):
             return
         for k in GRID_GIVEN_KS:
             log = self._0027("given", k, 1)
@@ -282,26 +287,20 @@ class Plan:
         return [self._npz_log(f"0027_start{k}", npz, start_step=k) for k in STARTS]
 
     def add_sweep(self):
-        ok, missing = self.has_0027()
-        if not ok:
-            self.notes.append(f"sweep: skipped: missing {', '.join(missing)}")
+        if not self.need_0027("sweep"):
             return
         for v in SWEEP_VELOCITIES:
             for k in SWEEP_KS:
                 self._sweep_cells("sweep", self._0027(v, k, 1))
 
     def add_sweep_starts(self):
-        ok, missing = self.has_0027()
-        if not ok:
-            self.notes.append(f"sweep_starts: skipped: missing {', '.join(missing)}")
+        if not self.need_0027("sweep_starts"):
             return
         for log in self._start_logs():
             self._sweep_cells("sweep_starts", log)
 
     def add_starts(self):
-        ok, missing = self.has_0027()
-        if not ok:
-            self.notes.append(f"starts: skipped: missing {', '.join(missing)}")
+        if not self.need_0027("starts"):
             return
         for log in self._start_logs():
             self._kitti_cell("starts", log, log)
