@@ -514,6 +514,82 @@ static void test_vl_sim_stale_frames_repeat_exactly_then_lose_one_step(void)
     TEST_ASSERT_TRUE(checked > 300);
 }
 
+/* Sample std of the n values v about zero (the jump has zero mean). */
+static double rms(const double *v, int n)
+{
+    double acc = 0.0;
+    int i;
+    for (i = 0; i < n; ++i) {
+        acc += v[i] * v[i];
+    }
+    return n > 0 ? sqrt(acc / n) : 0.0;
+}
+
+static void test_vl_sim_stale_jump_displaces_each_carried_track(void)
+{
+    /* With stale_jump, the first frame after a stale one shows each carried track off its
+       lost-step pixels by one draw of the jump: std 1 px in u and v, 0.25 px in disparity. */
+    static vl_stereo_frame_t prev, at_stale;
+    static double du[4096], dv[4096], dd[4096];
+    vl_sim_config_t cfg;
+    vl_calibration_t cal;
+    double R[9], p[3], Rstale[9], pstale[3], x[3], px[3];
+    int k, n = 0, after_stale = 0;
+    int32_t unshifted_from = 0, unshifted_next = 0, carried_below = 0;
+    uint32_t i;
+    vl_sim_config_default(&cfg);
+    cfg.num_steps = 400;
+    cfg.pixel_noise = 0.0;
+    cfg.stale_probability = 0.1;
+    cfg.stale_jump = 1.0;
+    cfg.stale_jump_disparity = 0.25;
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+    vl_sim_calibration(&g_a, &cal);
+    for (k = 0;; ++k) {
+        const int32_t issued_before = vl_sim_tracks_issued(&g_a);
+        int stale;
+        if (vl_sim_step(&g_a, NULL, &g_fa, R, p) != 0) {
+            break;
+        }
+        stale = k > 0 && repeats(&g_fa, &prev);
+        if (after_stale && !stale) {
+            for (i = 0; i < g_fa.count && n < 4096; ++i) {
+                const int32_t id = g_fa.obs[i].id;
+                if (id < unshifted_from || id >= carried_below || find_id(&at_stale, id) < 0) {
+                    continue;
+                }
+                TEST_ASSERT_EQUAL_INT(0, vl_sim_landmark(&g_a, id, x));
+                reproject(&cal, Rstale, pstale, x, px);
+                du[n] = g_fa.obs[i].u_left - px[0];
+                dv[n] = g_fa.obs[i].v_left - px[1];
+                dd[n] = (g_fa.obs[i].u_left - g_fa.obs[i].u_right) - (px[0] - px[2]);
+                ++n;
+            }
+        }
+        after_stale = 0;
+        if (stale) {
+            at_stale = g_fa;
+            memcpy(Rstale, R, sizeof(R));
+            memcpy(pstale, p, sizeof(p));
+            after_stale = 1;
+            unshifted_from = unshifted_next;
+            carried_below = issued_before;
+            unshifted_next = issued_before;
+        }
+        prev = g_fa;
+    }
+    TEST_ASSERT_TRUE(n > 300);
+    TEST_ASSERT_DOUBLE_WITHIN(0.15, 1.0, rms(du, n));
+    TEST_ASSERT_DOUBLE_WITHIN(0.15, 1.0, rms(dv, n));
+    TEST_ASSERT_DOUBLE_WITHIN(0.05, 0.25, rms(dd, n));
+    /* The realistic preset sets it (README, vislam-sim), and 0 turns it off bit for bit
+       (test_vl_sim_stale_frames_repeat_exactly_then_lose_one_step). */
+    vl_sim_config_realistic(&cfg);
+    TEST_ASSERT_TRUE(cfg.stale_jump > 0.0 && cfg.stale_jump_disparity > 0.0);
+    cfg.stale_jump = -1.0;
+    TEST_ASSERT_EQUAL_INT(-1, vl_sim_init(&g_a, &cfg));
+}
+
 static void test_vl_sim_detection_frames_are_the_stale_ones(void)
 {
     static vl_stereo_frame_t prev;
@@ -820,6 +896,7 @@ int main(void)
     RUN_TEST(test_vl_sim_conditions_off_leave_outputs_bit_identical);
     RUN_TEST(test_vl_sim_init_rejects_bad_conditions);
     RUN_TEST(test_vl_sim_stale_frames_repeat_exactly_then_lose_one_step);
+    RUN_TEST(test_vl_sim_stale_jump_displaces_each_carried_track);
     RUN_TEST(test_vl_sim_detection_frames_are_the_stale_ones);
     RUN_TEST(test_vl_sim_reassociated_ids_jump_to_another_point);
     RUN_TEST(test_vl_sim_moving_points_move_at_their_speed);

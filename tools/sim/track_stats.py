@@ -186,6 +186,25 @@ def one_step_errors(D, W, k, k2, pose_k, pose_k2, depth_max=60.0):
     return ids, err
 
 
+def step_residuals(D, W, k, k2, pose_k, pose_k2, sel, depth_max=60.0):
+    """u, v and disparity residuals (px) at frame k2 of the tracks sel seen at k and k2: triangulated
+    at k (camera at pose_k), moved to pose_k2."""
+    valid, f, K, b = D["valid"], D["f"], D["K"], D["b"]
+    ids = np.intersect1d(np.nonzero(valid[:, k] & valid[:, k2])[0], sel)
+    pc = triangulate(D, k, ids)
+    ok = np.isfinite(pc[:, 2]) & (pc[:, 2] > 1.0) & (pc[:, 2] < depth_max)
+    ids, pc = ids[ok], pc[ok]
+    q = transform(np.linalg.inv(W[pose_k2]) @ W[pose_k], pc)
+    uv = project(D, q)
+    disp = K[0, 0] * b / q[:, 2]
+    seen = f[:, ids, k2]
+    return np.column_stack([uv[:, 0] - seen[0], uv[:, 1] - seen[1], disp - (seen[0] - seen[2])])
+
+
+def robust_std(x):
+    return 1.4826 * float(np.median(np.abs(x - np.median(x))))
+
+
 def report(name, D, W):
     f, valid = D["f"], D["valid"]
     M, T = valid.shape
@@ -359,6 +378,20 @@ def stale_geometry(D, W, stale):
     same = sum(np.array_equal(f[:, valid[:, k - 1] & valid[:, k], k],
                               f[:, valid[:, k - 1] & valid[:, k], k - 1]) for k in ks)
     print(f"  old tracks' pixels at k equal k-1's exactly in {same} of {len(ks)}")
+    # The scatter about the one-step-lost motion (the simulator's stale_jump): the carried tracks
+    # across the stale frame against every track over an ordinary step, as robust stds.
+    across = [step_residuals(D, W, k - 1, k + 1, k - 1, k, np.nonzero(valid[:, k - 1] & valid[:, k])[0])
+              for k in ks]
+    ordinary = [step_residuals(D, W, k, k + 1, k, k + 1, np.arange(valid.shape[0]))
+                for k in range(Tg - 1) if not (stale[k] or stale[k + 1])]
+    a, o = np.concatenate(across), np.concatenate(ordinary)
+    sa = [robust_std(a[:, j]) for j in range(3)]
+    so = [robust_std(o[:, j]) for j in range(3)]
+    jump = [float(np.sqrt(max(0.0, x * x - y * y))) for x, y in zip(sa, so)]
+    print(f"  carried tracks across the stale frame (as GT k-1 -> k), robust std u / v / disparity: "
+          f"{sa[0]:.2f} / {sa[1]:.2f} / {sa[2]:.2f} px ({len(a)} obs); over an ordinary step "
+          f"{so[0]:.2f} / {so[1]:.2f} / {so[2]:.2f} px; the jump (their difference in quadrature) "
+          f"{jump[0]:.2f} / {jump[1]:.2f} / {jump[2]:.2f} px")
 
 
 def main():

@@ -69,6 +69,8 @@ static void usage(FILE *f)
                "                          observations use (the log carries the nominal one) [0,0,0]\n"
                "  --calib-translation-error X,Y,Z  m, added to that cam_T_imu's translation [0,0,0]\n"
                "  --baseline-error REL    relative error of the baseline the observations use [0]\n"
+               "  --stale-jump PX[,DISP]  std of each carried track's jump across a stale frame in u and\n"
+               "                          v (and in disparity) [0,0]\n"
                "  --quiet                 no summary on stderr\n"
                "  --version               print the version and exit\n"
                "  --help                  this text\n");
@@ -106,6 +108,7 @@ static int takes_value(const char *a)
                                         "--calib-rotation-error",
                                         "--calib-translation-error",
                                         "--baseline-error",
+                                        "--stale-jump",
                                         "--start-utime"};
     for (size_t k = 0; k < sizeof(names) / sizeof(names[0]); ++k) {
         if (strcmp(a, names[k]) == 0) {
@@ -305,6 +308,13 @@ int main(int argc, char **argv)
             bad = parse_vec3(v, cfg.calib_translation_error) != 0;
         } else if (strcmp(a, "--baseline-error") == 0) {
             bad = parse_double(v, &cfg.baseline_error) != 0;
+        } else if (strcmp(a, "--stale-jump") == 0) {
+            if (strchr(v, ',') != NULL) {
+                bad = parse_pair(v, &cfg.stale_jump, &cfg.stale_jump_disparity) != 0;
+            } else {
+                bad = parse_double(v, &cfg.stale_jump) != 0;
+                cfg.stale_jump_disparity = 0.0;
+            }
         } else if (strcmp(a, "--start-utime") == 0) {
             bad = parse_u64(v, &u) != 0 || u > (unsigned long long)INT64_MAX / 2;
             cfg.start_utime = (int64_t)u;

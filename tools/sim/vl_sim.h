@@ -45,7 +45,10 @@
  *   T(k+1) T(k)^-1, world-from-IMU, for the rest of the track), and moves on
  *   time after that. The real data shows exactly this (tracks carried over a
  *   stale frame agree with the ground-truth motion k-1 -> k across it, not
- *   k-1 -> k+1, and with k+1 -> k+2 after it). A frame is stale with
+ *   k-1 -> k+1, and with k+1 -> k+2 after it). But each carried track also
+ *   jumps: its u and v by stale_jump px (std, zero mean) and its disparity by
+ *   stale_jump_disparity, drawn once at the stale frame and kept for the rest
+ *   of the track (it sees a point displaced so). A frame is stale with
  *   probability stale_probability, and, with detect_below_fraction set, on
  *   every detection frame: the real tracker starts tracks only when fewer than
  *   about 50 remain, and each of its detection frames is stale.
@@ -61,9 +64,10 @@
  *   are observable beyond max_depth.
  * - Calibration error: observations come from a perturbed cam_T_imu and
  *   baseline; vl_sim_calibration still returns the nominal calibration.
- * The decisions draw from two further world streams, seeded from `seed`:
+ * The decisions draw from three further world streams, seeded from `seed`:
  * rng_event (stale frames, re-associations, mismatches and the mismatched
- * pixels) and rng_place (which placed points are far or moving, and how). No
+ * pixels), rng_place (which placed points are far or moving, and how) and
+ * rng_jump (the stale frames' jumps). No
  * stream is drawn from for a condition that is off, so with every condition
  * off the outputs are those of the plain simulator, bit for bit. With one on,
  * the world streams still give the same path and points, and noise_seed still
@@ -162,6 +166,9 @@ typedef struct {
                                             for the observations */
     double calib_translation_error[3]; /**< m, added to cam_T_imu's translation for the observations */
     double baseline_error;             /**< relative: observations use baseline * (1 + baseline_error) */
+    double stale_jump;                 /**< px, std of the jump of each carried track's u and v across a
+                                            stale frame */
+    double stale_jump_disparity;       /**< px, std of the same jump in disparity */
 } vl_sim_config_t;
 
 /** How often the realistic conditions occurred so far. */
@@ -209,6 +216,7 @@ typedef struct {
     vl_sim_rng_t rng_noise;     /**< measurement noise */
     vl_sim_rng_t rng_event;     /**< stale frames, re-associations, mismatches */
     vl_sim_rng_t rng_place;     /**< far and moving points */
+    vl_sim_rng_t rng_jump;      /**< the carried tracks' jumps across stale frames */
     vl_calibration_t obs_calib; /**< the calibration the observations are made with */
 
     double phase[8]; /**< rad, phases of the wobble terms */
