@@ -322,8 +322,8 @@ static int config_ok(const vl_sim_config_t *c)
           unit_range(c->detect_new_fraction) && unit_range(c->reassoc_probability) && unit_range(c->reassoc_fraction) &&
           unit_range(c->moving_fraction) && unit_range(c->mismatch_probability) && unit_range(c->far_fraction) &&
           c->reassoc_radius >= 0.0 && c->stale_jump >= 0.0 && c->stale_jump < 1e3 && c->stale_jump_disparity >= 0.0 &&
-          c->stale_jump_disparity < 1e3 && c->moving_speed >= 0.0 && c->moving_speed < 1e3 && c->baseline_error > -0.5 &&
-          c->baseline_error < 0.5 &&
+          c->stale_jump_disparity < 1e3 && c->moving_speed >= 0.0 && c->moving_speed < 1e3 &&
+          c->baseline_error > -0.5 && c->baseline_error < 0.5 &&
           (c->far_fraction == 0.0 || (c->far_disparity_min > 0.0 && c->far_disparity_max >= c->far_disparity_min)))) {
         return 0;
     }
