@@ -505,6 +505,7 @@ void test_vl_config_default_equals_documented_values(void)
     TEST_ASSERT_EQUAL_DOUBLE(1e-4, cfg.angular_offset_walk);
     TEST_ASSERT_EQUAL_DOUBLE(1.5, cfg.pixel_noise);
     TEST_ASSERT_EQUAL_DOUBLE(0.35, cfg.repeat_anchor_noise);
+    TEST_ASSERT_EQUAL_DOUBLE(0.2, cfg.repeat_track_walk);
     TEST_ASSERT_EQUAL_UINT32(VL_MAX_LANDMARKS, cfg.max_landmarks);
     TEST_ASSERT_EQUAL_UINT32(0, cfg.max_unseen_frames);
     TEST_ASSERT_EQUAL_UINT32(0, cfg.max_admissions);
@@ -533,8 +534,8 @@ void test_vl_config_default_equals_documented_values(void)
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(I, cfg.calibration.cam_T_imu, 16);
     TEST_ASSERT_NULL(cfg.landmark_sink);
     TEST_ASSERT_NULL(cfg.log);
-    /* Every member before the calibration is a row of the table: 37 rows, and they tile it. */
-    TEST_ASSERT_EQUAL_UINT(37, NUM_ROWS);
+    /* Every member before the calibration is a row of the table: 38 rows, and they tile it. */
+    TEST_ASSERT_EQUAL_UINT(38, NUM_ROWS);
     size_t end = 0;
     for (size_t i = 0; i < NUM_ROWS; ++i) {
         TEST_ASSERT_TRUE_MESSAGE(k_rows[i].offset >= end, k_rows[i].key);

@@ -295,6 +295,84 @@ void test_repeat_noise_moves_the_observed_landmarks_together_and_nothing_else(vo
     TEST_ASSERT_TRUE(largest > 0.25 * (step[0] * step[0] + step[1] * step[1]));
 }
 
+/*
+ * The carried tracks' walk: each landmark flagged at a repeated image gets, on its own 3x3
+ * block of P, A diag((z s / fx)^2, (z s / fy)^2, (z^2 s / (fx b))^2) A^T with A = R Rc^T and z
+ * its depth in the camera; nothing else in P moves.
+ */
+void test_carried_walk_widens_the_carried_landmarks_alone(void)
+{
+    static vl_stereo_frame_t frame;
+    static double before[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX];
+    vl_config_t cfg;
+    window_of_six(&cfg, &frame);
+    const double s = 0.5;
+    est.cfg.repeat_track_walk = s;
+    /* window_of_six's second frame repeats its first (a repeated image): all six were carried. */
+    for (uint32_t slot = 0; slot < 6; ++slot) {
+        TEST_ASSERT_EQUAL_UINT32(1, est.slots[slot].carried);
+        est.slots[slot].carried = 0;
+    }
+    TEST_ASSERT_EQUAL_UINT32(0, vl_window_carried_walk(&est));
+    frame.count = 4; /* ids 0, 2, 4 and one outside the window */
+    frame.obs[1] = frame.obs[2];
+    frame.obs[2] = frame.obs[4];
+    frame.obs[3].id = 99;
+    vl_window_mark_carried(&est, &frame, frame.count);
+    int carried[6];
+    for (uint32_t slot = 0; slot < 6; ++slot) {
+        carried[slot] = est.slots[slot].id % 2 == 0 && est.slots[slot].id <= 4;
+        TEST_ASSERT_EQUAL_UINT32((uint32_t)carried[slot], est.slots[slot].carried);
+    }
+    const uint32_t n = vl_state_dim(&est);
+    memcpy(before, est.P, sizeof(before));
+    TEST_ASSERT_EQUAL_UINT32(3, vl_window_carried_walk(&est));
+
+    const vl_calibration_t *cal = &est.cfg.calibration;
+    double Rc[9], A[9];
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            Rc[3 * i + j] = cal->cam_T_imu[4 * i + j];
+        }
+    }
+    vl_matmul_bt(est.R, Rc, A, 3, 3, 3);
+    double largest = 0.0;
+    for (uint32_t col = 0; col < n; ++col) {
+        for (uint32_t row = 0; row < n; ++row) {
+            const double added =
+                est.P[(size_t)col * VL_STATE_DIM_MAX + row] - before[(size_t)col * VL_STATE_DIM_MAX + row];
+            double expected = 0.0;
+            const int landmarks = row >= VL_CORE_DIM && col >= VL_CORE_DIM;
+            const uint32_t a = landmarks ? (row - VL_CORE_DIM) / 3u : 0u;
+            if (landmarks && a == (col - VL_CORE_DIM) / 3u && carried[a]) {
+                const double *l = &est.landmark_state[3 * a];
+                const double d[3] = {l[0] - est.p[0], l[1] - est.p[1], l[2] - est.p[2]};
+                double body[3], z = cal->cam_T_imu[11];
+                vl_matmul_at(est.R, d, body, 3, 3, 1);
+                for (int j = 0; j < 3; ++j) {
+                    z += Rc[6 + j] * body[j];
+                }
+                const double q[3] = {pow(z * s / cal->fx, 2), pow(z * s / cal->fy, 2),
+                                     pow(z * z * s / (cal->fx * cal->baseline), 2)};
+                const uint32_t r = (row - VL_CORE_DIM) % 3u, c = (col - VL_CORE_DIM) % 3u;
+                for (int j = 0; j < 3; ++j) {
+                    expected += A[3 * r + j] * q[j] * A[3 * c + j];
+                }
+            }
+            if (expected == 0.0) {
+                TEST_ASSERT_EQUAL_DOUBLE(0.0, added); /* bit-identical elsewhere */
+            } else {
+                TEST_ASSERT_DOUBLE_WITHIN(1e-12 * (1.0 + fabs(expected)), expected, added);
+                largest = fmax(largest, fabs(expected));
+            }
+            /* exactly symmetric */
+            TEST_ASSERT_EQUAL_DOUBLE(est.P[(size_t)col * VL_STATE_DIM_MAX + row],
+                                     est.P[(size_t)row * VL_STATE_DIM_MAX + col]);
+        }
+    }
+    TEST_ASSERT_TRUE(largest > 0.0);
+}
+
 /* Off or on, the filter is the same except at repeated images. */
 void test_repeat_noise_acts_at_repeated_images_only(void)
 {
@@ -995,6 +1073,7 @@ int main(void)
     RUN_TEST(test_update_counts_a_repeated_image_and_nothing_else);
     RUN_TEST(test_repeat_noise_moves_the_observed_landmarks_together_and_nothing_else);
     RUN_TEST(test_repeat_noise_acts_at_repeated_images_only);
+    RUN_TEST(test_carried_walk_widens_the_carried_landmarks_alone);
     RUN_TEST(test_sparse_frame_without_consensus_keeps_the_gate_verdict);
     RUN_TEST(test_an_outlier_in_a_sparse_frame_moves_the_pixel_noise_a_bounded_step);
     return UNITY_END();

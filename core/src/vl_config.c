@@ -42,6 +42,7 @@ void vl_config_preset_seed(vl_config_t *cfg)
     cfg->max_update_work = 0.0;
     cfg->adaptive_noise = 0;
     cfg->repeat_anchor_noise = 0.0; /* the seed used repeated images as any other */
+    cfg->repeat_track_walk = 0.0;
     cfg->min_track_length = 1;
     cfg->min_disparity = 1e-6;
     cfg->max_depth = 1e9;

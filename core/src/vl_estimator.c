@@ -425,6 +425,12 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     e->num_broken = 0;
     vl_candidates_t candidates;
     candidates.count = 0;
+    if (e->cfg.repeat_track_walk > 0.0) {
+        vl_work_carried_walk(e, vl_window_carried_walk(e));
+        if (repeated && had_frame) {
+            vl_window_mark_carried(e, frame, count);
+        }
+    }
     if (repeated && had_frame && e->cfg.repeat_anchor_noise > 0.0) {
         vl_work_repeat_noise(e, vl_window_repeat_noise(e, frame, count));
     }

@@ -139,6 +139,56 @@ uint32_t vl_window_repeat_noise(vl_estimator_t *e, const vl_stereo_frame_t *fram
     return n;
 }
 
+void vl_window_mark_carried(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count)
+{
+    for (uint32_t i = 0; i < count; ++i) {
+        const int slot = find_slot(e, frame->obs[i].id);
+        if (slot >= 0) {
+            e->slots[slot].carried = 1;
+        }
+    }
+}
+
+/*
+ * A carried track's pixels wander from the point it was triangulated at (README, Accuracy:
+ * across a repeat each jumps by about a pixel, and a point displaced sideways errs more as
+ * the camera comes closer). A wander of s px is, in the camera frame at depth z, z s / f
+ * across and z^2 s / (f b) in depth; in the world Q = A diag(q) A^T with A = R Rc^T.
+ */
+uint32_t vl_window_carried_walk(vl_estimator_t *e)
+{
+    const vl_calibration_t *cal = &e->cfg.calibration;
+    const double s = e->cfg.repeat_track_walk;
+    double Rc[9], tc[3], A[9];
+    vl_camera_extrinsics(cal, Rc, tc);
+    uint32_t n = 0;
+    for (uint32_t slot = 0; slot < e->num_landmarks; ++slot) {
+        double b[3], c[3];
+        if (!e->slots[slot].carried || vl_camera_point(e, Rc, tc, vl_landmark_point(e, slot), b, c) != 0) {
+            continue; /* not carried, or behind the camera: no depth to scale by */
+        }
+        if (n == 0) {
+            vl_matmul_bt(e->R, Rc, A, 3, 3, 3);
+        }
+        const double z = c[2];
+        const double q[3] = {(z * s / cal->fx) * (z * s / cal->fx), (z * s / cal->fy) * (z * s / cal->fy),
+                             (z * z * s / (cal->fx * cal->baseline)) * (z * z * s / (cal->fx * cal->baseline))};
+        const uint32_t col = vl_landmark_col(slot);
+        for (uint32_t r = 0; r < 3; ++r) {
+            for (uint32_t k = 0; k <= r; ++k) { /* one value for both triangles: P stays exactly symmetric */
+                const double add = A[3 * r] * q[0] * A[3 * k] + A[3 * r + 1] * q[1] * A[3 * k + 1] +
+                                   A[3 * r + 2] * q[2] * A[3 * k + 2];
+                *vl_P_at(e, col + r, col + k) += add;
+                if (k != r) {
+                    *vl_P_at(e, col + k, col + r) += add;
+                }
+            }
+        }
+        ++n;
+    }
+    return n;
+}
+
 /*
  * Admits a landmark from one stereo observation y (compressed): l = R b + p with
  * b the triangulated point in the IMU frame. In invariant coordinates its error is
@@ -164,6 +214,7 @@ static void admit_landmark(vl_estimator_t *e, int32_t id, const double y[3])
     s->observations = 1;
     s->unseen_frames = 0;
     s->updates = 0;
+    s->carried = 0;
     s->last_update_frame = e->frame_index;
     s->first_utime = e->state_utime;
     s->last_utime = e->state_utime;

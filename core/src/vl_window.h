@@ -60,4 +60,15 @@ void vl_window_marginalize(vl_estimator_t *e, uint32_t slot);
  */
 uint32_t vl_window_repeat_noise(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count);
 
+/** At a repeated image: flags the window landmarks the frame observes as carried over it. */
+void vl_window_mark_carried(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count);
+
+/**
+ * Once a frame, for every landmark carried over a repeated image (vl_window_mark_carried)
+ * before this frame: process noise of repeat_track_walk pixels in its camera's x, y and
+ * disparity at the current pose, on its own 3x3 block of P. Returns how many landmarks
+ * it widened (work: O(landmarks), no allocation).
+ */
+uint32_t vl_window_carried_walk(vl_estimator_t *e);
+
 #endif /* VISLAM_VL_WINDOW_H */

@@ -21,6 +21,8 @@
 #define VL_WORK_STEP 100u
 /* One 3x3 block of a repeated image's shared landmark noise and its mirror: a dot product, 9 entries. */
 #define VL_WORK_REPEAT_PAIR 50u
+/* One carried landmark's walk: its camera point (two 3x3 products) and six entries of A diag(q) A^T. */
+#define VL_WORK_CARRIED_WALK 120u
 /* Moving one landmark by a correction: two 3x3 products and a sum. */
 #define VL_WORK_LANDMARK_CORRECTION 39u
 
@@ -92,6 +94,13 @@ void vl_work_repeat_noise(vl_estimator_t *e, uint32_t carried)
 {
     const uint64_t n = carried;
     add(e, &e->work.predict, VL_WORK_STEP + VL_WORK_REPEAT_PAIR * n * (n + 1u) / 2u);
+}
+
+void vl_work_carried_walk(vl_estimator_t *e, uint32_t n)
+{
+    if (n > 0) { /* A = R Rc^T once, then each landmark */
+        add(e, &e->work.predict, 60u + (uint64_t)n * VL_WORK_CARRIED_WALK);
+    }
 }
 
 void vl_work_gate(vl_estimator_t *e, uint32_t k)

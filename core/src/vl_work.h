@@ -27,6 +27,9 @@ void vl_work_settle(vl_estimator_t *e, uint32_t n, int moving);
 /** The process noise of a repeated image shared by the carried landmarks (counted as prediction). */
 void vl_work_repeat_noise(vl_estimator_t *e, uint32_t carried);
 
+/** The carried landmarks' walk on n landmarks (vl_window_carried_walk). */
+void vl_work_carried_walk(vl_estimator_t *e, uint32_t n);
+
 /** The innovation gate of k observations. */
 void vl_work_gate(vl_estimator_t *e, uint32_t k);
 

@@ -92,10 +92,10 @@ def test_reference_agrees_with_rotated_deferrals(build_dir, tmp_path):
     assert rc == 1
 
 
-def test_reference_agrees_with_repeat_anchor_noise(build_dir, tmp_path):
+def test_reference_agrees_with_repeat_anchor_noise_and_carried_walk(build_dir, tmp_path):
     """A realistic simulated drive with stale (repeated) frames, the repeated images' landmark noise
-    on: the reference adds the same noise (it agrees), and the noise matters (without it in the
-    reference alone the poses move)."""
+    and the carried tracks' walk on: the reference adds the same noise (it agrees), and each
+    matters (without it in the reference alone the poses move)."""
     log = tmp_path / "stale.lcmlog"
     subprocess.run([str(build_dir / "bin" / "vislam-sim"), "--realistic", "--steps", "40", "--stale-probability",
                     "0.2", "--out", str(log), "--truth", str(tmp_path / "truth.tum")], check=True, capture_output=True)
@@ -106,6 +106,9 @@ def test_reference_agrees_with_repeat_anchor_noise(build_dir, tmp_path):
     assert fig["agreement"]["position_max_m"] < TOLERANCE
     assert rc == 0
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--set", "repeat_anchor_noise=0", log=log)
+    assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
+    assert rc == 1
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--set", "repeat_track_walk=0", log=log)
     assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
     assert rc == 1
 

@@ -309,6 +309,7 @@ class Slot:
     seen: int = 0  # this frame: 0 not observed, 1 observed, 2 observed and contradicting (broken)
     updates: int = 0  # its observations the updates used
     last_update_frame: int = 0  # frame of the last update that used it, else of its admission
+    carried: bool = False  # its track went through a repeated image (repeat_track_walk)
 
 
 @dataclass
@@ -491,6 +492,14 @@ class Filter:
         self.counters["frames"] += 1
         if self.cfg["mode"] == "imu_only":
             return True
+        if self.cfg["repeat_track_walk"] > 0.0:
+            self.carried_walk()
+            if repeated and had_frame:
+                for o in frame:
+                    for slot in self.slots:
+                        if slot.id == int(o[0]):
+                            slot.carried = True
+                            break
         if repeated and had_frame and self.cfg["repeat_anchor_noise"] > 0.0:
             self.repeat_noise(frame)
         for s in self.slots:
@@ -549,6 +558,23 @@ class Filter:
             c = CORE_DIM + 3 * s
             G[c:c + 3] += np.hstack([np.eye(3), -hat3(self.L[s] - self.p)])
         self.P = self.P + G @ Sigma @ G.T
+
+    def carried_walk(self):
+        """Each frame, a landmark whose track a repeated image carried gets the tracker's wander of
+        s = repeat_track_walk px in its camera's x, y and disparity: at depth z, (z s / fx, z s / fy)
+        across and z^2 s / (fx b) in depth, to the world by A = R Rc^T; on its own block of P."""
+        s, cal = self.cfg["repeat_track_walk"], self.cal
+        A = self.R @ cal.Rc.T
+        for k, slot in enumerate(self.slots):
+            if not slot.carried:
+                continue
+            _, c = self.camera_point(self.L[k])
+            if c is None:
+                continue
+            z = c[2]
+            q = np.array([(z * s / cal.fx) ** 2, (z * s / cal.fy) ** 2, (z * z * s / (cal.fx * cal.baseline)) ** 2])
+            i = CORE_DIM + 3 * k
+            self.P[i:i + 3, i:i + 3] += A @ np.diag(q) @ A.T
 
     def _plausible(self, o):
         """The image (2 cx by 2 cy unless configured) widened by image_margin, and max_disparity."""

@@ -311,6 +311,7 @@ typedef struct {
     uint32_t observations;
     uint32_t unseen_frames;
     uint32_t updates;           /**< its observations the updates used */
+    uint32_t carried;           /**< 1: its track went through a repeated image (repeat_track_walk) */
     uint64_t last_update_frame; /**< frame index of the last update that used it, else of its admission */
     int64_t first_utime;
     int64_t last_utime;
