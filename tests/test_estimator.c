@@ -220,6 +220,65 @@ static void window_of_six(vl_config_t *cfg, vl_stereo_frame_t *frame)
     TEST_ASSERT_EQUAL_UINT32(6, vl_window_size(&est));
 }
 
+/* window_of_six's frame reduced to ids 0, 2 and 4 and one outside the window; which slots it observes. */
+static void observe_even_ids(vl_stereo_frame_t *frame, int observed[6])
+{
+    frame->count = 4;
+    frame->obs[1] = frame->obs[2];
+    frame->obs[2] = frame->obs[4];
+    frame->obs[3].id = 99;
+    for (uint32_t slot = 0; slot < 6; ++slot) {
+        observed[slot] = est.slots[slot].id % 2 == 0 && est.slots[slot].id <= 4;
+    }
+}
+
+/* The 3x3 block a noise should have added to the landmark blocks (a, b) of P (row-major; zero: none). */
+typedef void (*landmark_noise_fn)(const void *ctx, uint32_t a, uint32_t b, double Q[9]);
+
+/* What a noise added to P since `before`: the expected blocks on the landmarks (to 1e-12) and, bit
+ * for bit, nothing elsewhere. Returns the largest expected entry. */
+static double check_landmark_noise(const double *before, landmark_noise_fn expected, const void *ctx)
+{
+    const uint32_t n = vl_state_dim(&est);
+    double largest = 0.0;
+    for (uint32_t col = 0; col < n; ++col) {
+        for (uint32_t row = 0; row < n; ++row) {
+            const size_t at = (size_t)col * VL_STATE_DIM_MAX + row;
+            const double added = est.P[at] - before[at];
+            double e = 0.0;
+            if (row >= VL_CORE_DIM && col >= VL_CORE_DIM) {
+                double Q[9];
+                expected(ctx, (row - VL_CORE_DIM) / 3u, (col - VL_CORE_DIM) / 3u, Q);
+                e = Q[3 * ((row - VL_CORE_DIM) % 3u) + (col - VL_CORE_DIM) % 3u];
+            }
+            if (e == 0.0) {
+                TEST_ASSERT_EQUAL_DOUBLE(0.0, added); /* bit-identical elsewhere */
+            } else {
+                TEST_ASSERT_DOUBLE_WITHIN(1e-12 * (1.0 + fabs(e)), e, added);
+                largest = fmax(largest, fabs(e));
+            }
+        }
+    }
+    return largest;
+}
+
+typedef struct {
+    double G[6][18]; /* G of each slot, 3x6 row-major */
+    double Sigma[36];
+    int carried[6];
+} repeat_noise_t;
+
+static void repeat_noise_block(const void *ctx, uint32_t a, uint32_t b, double Q[9])
+{
+    const repeat_noise_t *r = ctx;
+    memset(Q, 0, 9 * sizeof(double));
+    if (r->carried[a] && r->carried[b]) {
+        double GS[18];
+        vl_matmul(r->G[a], r->Sigma, GS, 3, 6, 6);
+        vl_matmul_bt(GS, r->G[b], Q, 3, 6, 3);
+    }
+}
+
 /*
  * The repeated image's noise: one rigid motion about the vehicle, rho and phi isotropic
  * with s^2 times the step's squared translation and angle, shared by the landmarks the
@@ -230,6 +289,7 @@ void test_repeat_noise_moves_the_observed_landmarks_together_and_nothing_else(vo
 {
     static vl_stereo_frame_t frame;
     static double before[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX];
+    static repeat_noise_t expected;
     vl_config_t cfg;
     window_of_six(&cfg, &frame);
     const double s = 0.5, step[3] = {1.0, 0.2, 0.0}, phi[3] = {0.0, 0.01, 0.03};
@@ -240,70 +300,58 @@ void test_repeat_noise_moves_the_observed_landmarks_together_and_nothing_else(vo
     for (int i = 0; i < 3; ++i) {
         est.frame_p[i] = est.p[i] - step[i];
     }
-    const uint32_t n = vl_state_dim(&est);
     memcpy(before, est.P, sizeof(before));
-    frame.count = 4; /* ids 0, 2, 4 and one outside the window */
-    frame.obs[1] = frame.obs[2];
-    frame.obs[2] = frame.obs[4];
-    frame.obs[3].id = 99;
+    observe_even_ids(&frame, expected.carried);
     TEST_ASSERT_EQUAL_UINT32(3, vl_window_repeat_noise(&est, &frame, frame.count));
 
     const double qt = s * s * (step[0] * step[0] + step[1] * step[1]);
     const double qr = s * s * (phi[1] * phi[1] + phi[2] * phi[2]);
-    const double Sigma[36] = {qt, 0, 0, 0,  0, 0, 0, qt, 0, 0, 0,  0, 0, 0, qt, 0, 0, 0,
-                              0,  0, 0, qr, 0, 0, 0, 0,  0, 0, qr, 0, 0, 0, 0,  0, 0, qr};
-    double G[6][18]; /* G of each slot, 3x6 row-major */
-    int carried[6] = {0};
+    memset(expected.Sigma, 0, sizeof(expected.Sigma));
+    for (int i = 0; i < 6; ++i) {
+        expected.Sigma[7 * i] = i < 3 ? qt : qr;
+    }
     for (uint32_t slot = 0; slot < 6; ++slot) {
         const double *l = &est.landmark_state[3 * slot];
         const double a[3] = {l[0] - est.p[0], l[1] - est.p[1], l[2] - est.p[2]};
         double S[9];
         vl_skew(a, S);
-        memset(G[slot], 0, sizeof(G[slot]));
+        memset(expected.G[slot], 0, sizeof(expected.G[slot]));
         for (int r = 0; r < 3; ++r) {
-            G[slot][6 * r + r] = 1.0;
+            expected.G[slot][6 * r + r] = 1.0;
             for (int c = 0; c < 3; ++c) {
-                G[slot][6 * r + 3 + c] = -S[3 * r + c];
-            }
-        }
-        carried[slot] = est.slots[slot].id % 2 == 0 && est.slots[slot].id <= 4;
-    }
-    double largest = 0.0;
-    for (uint32_t col = 0; col < n; ++col) {
-        for (uint32_t row = 0; row < n; ++row) {
-            const double added =
-                est.P[(size_t)col * VL_STATE_DIM_MAX + row] - before[(size_t)col * VL_STATE_DIM_MAX + row];
-            double expected = 0.0;
-            if (row >= VL_CORE_DIM && col >= VL_CORE_DIM) {
-                const uint32_t a = (row - VL_CORE_DIM) / 3u, b = (col - VL_CORE_DIM) / 3u;
-                if (carried[a] && carried[b]) {
-                    double GS[18], Q[9];
-                    vl_matmul(G[a], Sigma, GS, 3, 6, 6);
-                    vl_matmul_bt(GS, G[b], Q, 3, 6, 3);
-                    expected = Q[3 * ((row - VL_CORE_DIM) % 3u) + (col - VL_CORE_DIM) % 3u];
-                }
-            }
-            if (expected == 0.0) {
-                TEST_ASSERT_EQUAL_DOUBLE(0.0, added); /* bit-identical elsewhere */
-            } else {
-                TEST_ASSERT_DOUBLE_WITHIN(1e-12 * (1.0 + fabs(expected)), expected, added);
-                largest = fmax(largest, fabs(expected));
+                expected.G[slot][6 * r + 3 + c] = -S[3 * r + c];
             }
         }
     }
+    const double largest = check_landmark_noise(before, repeat_noise_block, &expected);
     /* a step of a metre, at s = 0.5: a quarter of a square metre along the step, and more off it */
     TEST_ASSERT_TRUE(largest > 0.25 * (step[0] * step[0] + step[1] * step[1]));
+}
+
+typedef struct {
+    double Q[6][9]; /* each slot's own block */
+    int carried[6];
+} carried_walk_t;
+
+static void carried_walk_block(const void *ctx, uint32_t a, uint32_t b, double Q[9])
+{
+    const carried_walk_t *w = ctx;
+    memset(Q, 0, 9 * sizeof(double));
+    if (a == b && w->carried[a]) {
+        memcpy(Q, w->Q[a], 9 * sizeof(double));
+    }
 }
 
 /*
  * The carried tracks' walk: each landmark flagged at a repeated image gets, on its own 3x3
  * block of P, A diag((z s / fx)^2, (z s / fy)^2, (z^2 s / (fx b))^2) A^T with A = R Rc^T and z
- * its depth in the camera; nothing else in P moves.
+ * its depth in the camera; nothing else in P moves, and P stays exactly symmetric.
  */
 void test_carried_walk_widens_the_carried_landmarks_alone(void)
 {
     static vl_stereo_frame_t frame;
     static double before[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX];
+    static carried_walk_t expected;
     vl_config_t cfg;
     window_of_six(&cfg, &frame);
     const double s = 0.5;
@@ -314,17 +362,11 @@ void test_carried_walk_widens_the_carried_landmarks_alone(void)
         est.slots[slot].carried = 0;
     }
     TEST_ASSERT_EQUAL_UINT32(0, vl_window_carried_walk(&est));
-    frame.count = 4; /* ids 0, 2, 4 and one outside the window */
-    frame.obs[1] = frame.obs[2];
-    frame.obs[2] = frame.obs[4];
-    frame.obs[3].id = 99;
+    observe_even_ids(&frame, expected.carried);
     vl_window_mark_carried(&est, &frame, frame.count);
-    int carried[6];
     for (uint32_t slot = 0; slot < 6; ++slot) {
-        carried[slot] = est.slots[slot].id % 2 == 0 && est.slots[slot].id <= 4;
-        TEST_ASSERT_EQUAL_UINT32((uint32_t)carried[slot], est.slots[slot].carried);
+        TEST_ASSERT_EQUAL_UINT32((uint32_t)expected.carried[slot], est.slots[slot].carried);
     }
-    const uint32_t n = vl_state_dim(&est);
     memcpy(before, est.P, sizeof(before));
     TEST_ASSERT_EQUAL_UINT32(3, vl_window_carried_walk(&est));
 
@@ -336,41 +378,31 @@ void test_carried_walk_widens_the_carried_landmarks_alone(void)
         }
     }
     vl_matmul_bt(est.R, Rc, A, 3, 3, 3);
-    double largest = 0.0;
+    for (uint32_t slot = 0; slot < 6; ++slot) {
+        const double *l = &est.landmark_state[3 * slot];
+        const double d[3] = {l[0] - est.p[0], l[1] - est.p[1], l[2] - est.p[2]};
+        double body[3], z = cal->cam_T_imu[11];
+        vl_matmul_at(est.R, d, body, 3, 3, 1);
+        for (int j = 0; j < 3; ++j) {
+            z += Rc[6 + j] * body[j];
+        }
+        const double q[3] = {pow(z * s / cal->fx, 2), pow(z * s / cal->fy, 2),
+                             pow(z * z * s / (cal->fx * cal->baseline), 2)};
+        for (int r = 0; r < 3; ++r) {
+            for (int c = 0; c < 3; ++c) {
+                expected.Q[slot][3 * r + c] = A[3 * r] * q[0] * A[3 * c] + A[3 * r + 1] * q[1] * A[3 * c + 1] +
+                                              A[3 * r + 2] * q[2] * A[3 * c + 2];
+            }
+        }
+    }
+    TEST_ASSERT_TRUE(check_landmark_noise(before, carried_walk_block, &expected) > 0.0);
+    const uint32_t n = vl_state_dim(&est);
     for (uint32_t col = 0; col < n; ++col) {
-        for (uint32_t row = 0; row < n; ++row) {
-            const double added =
-                est.P[(size_t)col * VL_STATE_DIM_MAX + row] - before[(size_t)col * VL_STATE_DIM_MAX + row];
-            double expected = 0.0;
-            const int landmarks = row >= VL_CORE_DIM && col >= VL_CORE_DIM;
-            const uint32_t a = landmarks ? (row - VL_CORE_DIM) / 3u : 0u;
-            if (landmarks && a == (col - VL_CORE_DIM) / 3u && carried[a]) {
-                const double *l = &est.landmark_state[3 * a];
-                const double d[3] = {l[0] - est.p[0], l[1] - est.p[1], l[2] - est.p[2]};
-                double body[3], z = cal->cam_T_imu[11];
-                vl_matmul_at(est.R, d, body, 3, 3, 1);
-                for (int j = 0; j < 3; ++j) {
-                    z += Rc[6 + j] * body[j];
-                }
-                const double q[3] = {pow(z * s / cal->fx, 2), pow(z * s / cal->fy, 2),
-                                     pow(z * z * s / (cal->fx * cal->baseline), 2)};
-                const uint32_t r = (row - VL_CORE_DIM) % 3u, c = (col - VL_CORE_DIM) % 3u;
-                for (int j = 0; j < 3; ++j) {
-                    expected += A[3 * r + j] * q[j] * A[3 * c + j];
-                }
-            }
-            if (expected == 0.0) {
-                TEST_ASSERT_EQUAL_DOUBLE(0.0, added); /* bit-identical elsewhere */
-            } else {
-                TEST_ASSERT_DOUBLE_WITHIN(1e-12 * (1.0 + fabs(expected)), expected, added);
-                largest = fmax(largest, fabs(expected));
-            }
-            /* exactly symmetric */
+        for (uint32_t row = 0; row < col; ++row) {
             TEST_ASSERT_EQUAL_DOUBLE(est.P[(size_t)col * VL_STATE_DIM_MAX + row],
                                      est.P[(size_t)row * VL_STATE_DIM_MAX + col]);
         }
     }
-    TEST_ASSERT_TRUE(largest > 0.0);
 }
 
 /* Off or on, the filter is the same except at repeated images. */

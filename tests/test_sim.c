@@ -450,55 +450,56 @@ static int repeats(const vl_stereo_frame_t *cur, const vl_stereo_frame_t *prev)
     return prev->count > 0;
 }
 
-static void test_vl_sim_stale_frames_repeat_exactly_then_lose_one_step(void)
+/** What a drive with stale frames hands to a check of its carried tracks. */
+typedef struct {
+    vl_calibration_t cal;
+    double R[9], p[3];           /* the true pose of the frame after the stale one */
+    double Rstale[9], pstale[3]; /* the true pose of the stale frame */
+    double du[4096], dv[4096], dd[4096];
+    int n;
+} carried_t;
+
+/*
+ * Runs cfg's drive (stale frames on) and, on each frame after a stale one, calls check for
+ * every track carried over that stale frame and over no earlier one, with its point. Returns
+ * how many stale frames it saw, after checking the simulator counted the same.
+ */
+static int visit_carried_after_stale(const vl_sim_config_t *cfg, carried_t *c,
+                                     void (*check)(carried_t *c, const vl_stereo_obs_t *o, const double x[3]))
 {
     static vl_stereo_frame_t prev, at_stale;
-    vl_sim_config_t cfg;
     vl_sim_counts_t counts;
-    vl_calibration_t cal;
-    double R[9], p[3], pprev[3] = {0, 0, 0}, Rstale[9], pstale[3], x[3], px[3];
-    int k, stale_seen = 0, checked = 0, after_stale = 0;
+    double pprev[3] = {0, 0, 0}, x[3];
+    int k, stale_seen = 0, after_stale = 0;
     int32_t unshifted_from = 0, unshifted_next = 0, carried_below = 0;
     uint32_t i;
-    vl_sim_config_default(&cfg);
-    cfg.num_steps = 400;
-    cfg.pixel_noise = 0.0;
-    cfg.stale_probability = 0.1;
-    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
-    vl_sim_calibration(&g_a, &cal);
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, cfg));
+    vl_sim_calibration(&g_a, &c->cal);
     for (k = 0;; ++k) {
         const int32_t issued_before = vl_sim_tracks_issued(&g_a);
         int stale;
-        if (vl_sim_step(&g_a, NULL, &g_fa, R, p) != 0) {
+        if (vl_sim_step(&g_a, NULL, &g_fa, c->R, c->p) != 0) {
             break;
         }
         stale = k > 0 && repeats(&g_fa, &prev);
         if (after_stale && !stale) {
-            /* Tracks carried over the stale frame (and over no earlier one) now show their point
-               as seen from the stale frame's pose: one step of motion lost. */
             for (i = 0; i < g_fa.count; ++i) {
                 const int32_t id = g_fa.obs[i].id;
                 if (id < unshifted_from || id >= carried_below || find_id(&at_stale, id) < 0) {
                     continue;
                 }
                 TEST_ASSERT_EQUAL_INT(0, vl_sim_landmark(&g_a, id, x));
-                reproject(&cal, Rstale, pstale, x, px);
-                TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[0], g_fa.obs[i].u_left);
-                TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[1], g_fa.obs[i].v_left);
-                TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[2], g_fa.obs[i].u_right);
-                reproject(&cal, R, p, x, px); /* and not from the frame's own pose */
-                TEST_ASSERT_TRUE(fabs(px[0] - g_fa.obs[i].u_left) + fabs(px[1] - g_fa.obs[i].v_left) > 1e-3);
-                ++checked;
+                check(c, &g_fa.obs[i], x);
             }
         }
         after_stale = 0;
         if (stale) {
             ++stale_seen;
             /* The truth moves on while the pixels stand still. */
-            TEST_ASSERT_TRUE(fabs(p[0] - pprev[0]) + fabs(p[1] - pprev[1]) > 0.5);
+            TEST_ASSERT_TRUE(fabs(c->p[0] - pprev[0]) + fabs(c->p[1] - pprev[1]) > 0.5);
             at_stale = g_fa;
-            memcpy(Rstale, R, sizeof(R));
-            memcpy(pstale, p, sizeof(p));
+            memcpy(c->Rstale, c->R, sizeof(c->R));
+            memcpy(c->pstale, c->p, sizeof(c->p));
             after_stale = 1;
             /* Ids from the previous stale frame's new ones up to this frame's new ones are unshifted. */
             unshifted_from = unshifted_next;
@@ -506,12 +507,53 @@ static void test_vl_sim_stale_frames_repeat_exactly_then_lose_one_step(void)
             unshifted_next = issued_before;
         }
         prev = g_fa;
-        memcpy(pprev, p, sizeof(p));
+        memcpy(pprev, c->p, sizeof(c->p));
     }
     vl_sim_counts(&g_a, &counts);
     TEST_ASSERT_EQUAL_UINT64(counts.stale_frames, (uint64_t)stale_seen);
+    return stale_seen;
+}
+
+/* A carried track shows its point as seen from the stale frame's pose: one step of motion lost. */
+static void check_one_step_lost(carried_t *c, const vl_stereo_obs_t *o, const double x[3])
+{
+    double px[3];
+    reproject(&c->cal, c->Rstale, c->pstale, x, px);
+    TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[0], o->u_left);
+    TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[1], o->v_left);
+    TEST_ASSERT_DOUBLE_WITHIN(1e-6, px[2], o->u_right);
+    reproject(&c->cal, c->R, c->p, x, px); /* and not from the frame's own pose */
+    TEST_ASSERT_TRUE(fabs(px[0] - o->u_left) + fabs(px[1] - o->v_left) > 1e-3);
+    ++c->n;
+}
+
+/* Keeps a carried track's offset from its one-step-lost pixels in u, v and disparity. */
+static void collect_jump(carried_t *c, const vl_stereo_obs_t *o, const double x[3])
+{
+    double px[3];
+    if (c->n >= 4096) {
+        return;
+    }
+    reproject(&c->cal, c->Rstale, c->pstale, x, px);
+    c->du[c->n] = o->u_left - px[0];
+    c->dv[c->n] = o->v_left - px[1];
+    c->dd[c->n] = (o->u_left - o->u_right) - (px[0] - px[2]);
+    ++c->n;
+}
+
+static void test_vl_sim_stale_frames_repeat_exactly_then_lose_one_step(void)
+{
+    static carried_t c;
+    vl_sim_config_t cfg;
+    int stale_seen;
+    vl_sim_config_default(&cfg);
+    cfg.num_steps = 400;
+    cfg.pixel_noise = 0.0;
+    cfg.stale_probability = 0.1;
+    c.n = 0;
+    stale_seen = visit_carried_after_stale(&cfg, &c, check_one_step_lost);
     TEST_ASSERT_TRUE(stale_seen > 20 && stale_seen < 65); /* 10 % of 399 */
-    TEST_ASSERT_TRUE(checked > 300);
+    TEST_ASSERT_TRUE(c.n > 300);
 }
 
 /* Sample std of the n values v about zero (the jump has zero mean). */
@@ -529,59 +571,20 @@ static void test_vl_sim_stale_jump_displaces_each_carried_track(void)
 {
     /* With stale_jump, the first frame after a stale one shows each carried track off its
        lost-step pixels by one draw of the jump: std 1 px in u and v, 0.25 px in disparity. */
-    static vl_stereo_frame_t prev, at_stale;
-    static double du[4096], dv[4096], dd[4096];
+    static carried_t c;
     vl_sim_config_t cfg;
-    vl_calibration_t cal;
-    double R[9], p[3], Rstale[9], pstale[3], x[3], px[3];
-    int k, n = 0, after_stale = 0;
-    int32_t unshifted_from = 0, unshifted_next = 0, carried_below = 0;
-    uint32_t i;
     vl_sim_config_default(&cfg);
     cfg.num_steps = 400;
     cfg.pixel_noise = 0.0;
     cfg.stale_probability = 0.1;
     cfg.stale_jump = 1.0;
     cfg.stale_jump_disparity = 0.25;
-    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
-    vl_sim_calibration(&g_a, &cal);
-    for (k = 0;; ++k) {
-        const int32_t issued_before = vl_sim_tracks_issued(&g_a);
-        int stale;
-        if (vl_sim_step(&g_a, NULL, &g_fa, R, p) != 0) {
-            break;
-        }
-        stale = k > 0 && repeats(&g_fa, &prev);
-        if (after_stale && !stale) {
-            for (i = 0; i < g_fa.count && n < 4096; ++i) {
-                const int32_t id = g_fa.obs[i].id;
-                if (id < unshifted_from || id >= carried_below || find_id(&at_stale, id) < 0) {
-                    continue;
-                }
-                TEST_ASSERT_EQUAL_INT(0, vl_sim_landmark(&g_a, id, x));
-                reproject(&cal, Rstale, pstale, x, px);
-                du[n] = g_fa.obs[i].u_left - px[0];
-                dv[n] = g_fa.obs[i].v_left - px[1];
-                dd[n] = (g_fa.obs[i].u_left - g_fa.obs[i].u_right) - (px[0] - px[2]);
-                ++n;
-            }
-        }
-        after_stale = 0;
-        if (stale) {
-            at_stale = g_fa;
-            memcpy(Rstale, R, sizeof(R));
-            memcpy(pstale, p, sizeof(p));
-            after_stale = 1;
-            unshifted_from = unshifted_next;
-            carried_below = issued_before;
-            unshifted_next = issued_before;
-        }
-        prev = g_fa;
-    }
-    TEST_ASSERT_TRUE(n > 300);
-    TEST_ASSERT_DOUBLE_WITHIN(0.15, 1.0, rms(du, n));
-    TEST_ASSERT_DOUBLE_WITHIN(0.15, 1.0, rms(dv, n));
-    TEST_ASSERT_DOUBLE_WITHIN(0.05, 0.25, rms(dd, n));
+    c.n = 0;
+    (void)visit_carried_after_stale(&cfg, &c, collect_jump);
+    TEST_ASSERT_TRUE(c.n > 300);
+    TEST_ASSERT_DOUBLE_WITHIN(0.15, 1.0, rms(c.du, c.n));
+    TEST_ASSERT_DOUBLE_WITHIN(0.15, 1.0, rms(c.dv, c.n));
+    TEST_ASSERT_DOUBLE_WITHIN(0.05, 0.25, rms(c.dd, c.n));
     /* The realistic preset sets it (README, vislam-sim), and 0 turns it off bit for bit
        (test_vl_sim_stale_frames_repeat_exactly_then_lose_one_step). */
     vl_sim_config_realistic(&cfg);
