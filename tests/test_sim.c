@@ -514,6 +514,15 @@ static int visit_carried_after_stale(const vl_sim_config_t *cfg, carried_t *c,
     return stale_seen;
 }
 
+/* 400 noiseless steps, one frame in ten stale. */
+static void stale_drive(vl_sim_config_t *cfg)
+{
+    vl_sim_config_default(cfg);
+    cfg->num_steps = 400;
+    cfg->pixel_noise = 0.0;
+    cfg->stale_probability = 0.1;
+}
+
 /* A carried track shows its point as seen from the stale frame's pose: one step of motion lost. */
 static void check_one_step_lost(carried_t *c, const vl_stereo_obs_t *o, const double x[3])
 {
@@ -546,10 +555,7 @@ static void test_vl_sim_stale_frames_repeat_exactly_then_lose_one_step(void)
     static carried_t c;
     vl_sim_config_t cfg;
     int stale_seen;
-    vl_sim_config_default(&cfg);
-    cfg.num_steps = 400;
-    cfg.pixel_noise = 0.0;
-    cfg.stale_probability = 0.1;
+    stale_drive(&cfg);
     c.n = 0;
     stale_seen = visit_carried_after_stale(&cfg, &c, check_one_step_lost);
     TEST_ASSERT_TRUE(stale_seen > 20 && stale_seen < 65); /* 10 % of 399 */
@@ -573,10 +579,7 @@ static void test_vl_sim_stale_jump_displaces_each_carried_track(void)
        lost-step pixels by one draw of the jump: std 1 px in u and v, 0.25 px in disparity. */
     static carried_t c;
     vl_sim_config_t cfg;
-    vl_sim_config_default(&cfg);
-    cfg.num_steps = 400;
-    cfg.pixel_noise = 0.0;
-    cfg.stale_probability = 0.1;
+    stale_drive(&cfg);
     cfg.stale_jump = 1.0;
     cfg.stale_jump_disparity = 0.25;
     c.n = 0;
