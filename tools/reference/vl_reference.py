@@ -495,11 +495,8 @@ class Filter:
         if self.cfg["repeat_track_walk"] > 0.0:
             self.carried_walk()
             if repeated and had_frame:
-                for o in frame:
-                    for slot in self.slots:
-                        if slot.id == int(o[0]):
-                            slot.carried = True
-                            break
+                for s in self.observed_slots(frame):
+                    self.slots[s].carried = True
         if repeated and had_frame and self.cfg["repeat_anchor_noise"] > 0.0:
             self.repeat_noise(frame)
         for s in self.slots:
@@ -539,14 +536,7 @@ class Filter:
         move together by one rigid motion about the vehicle, delta l_a = rho + phi x (l_a - p), with
         rho and phi isotropic of s^2 times the squared step (dp, dphi) from the previous frame's pose
         (s = repeat_anchor_noise); added to the landmark blocks of P: Q_ab = G_a Sigma G_b^T."""
-        carried = []
-        for o in frame:
-            if len(carried) >= len(self.slots):
-                break
-            for s, slot in enumerate(self.slots):
-                if slot.id == int(o[0]):
-                    carried.append(s)
-                    break
+        carried = self.observed_slots(frame)
         dR = self.R @ self.frame_R.T
         w = 0.5 * np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
         angle = math.atan2(math.sqrt(w @ w), min(1.0, max(-1.0, 0.5 * (np.trace(dR) - 1.0))))
@@ -558,6 +548,18 @@ class Filter:
             c = CORE_DIM + 3 * s
             G[c:c + 3] += np.hstack([np.eye(3), -hat3(self.L[s] - self.p)])
         self.P = self.P + G @ Sigma @ G.T
+
+    def observed_slots(self, frame):
+        """The window slots the frame observes, in the frame's order (at most one per slot)."""
+        out = []
+        for o in frame:
+            if len(out) >= len(self.slots):
+                break
+            for s, slot in enumerate(self.slots):
+                if slot.id == int(o[0]):
+                    out.append(s)
+                    break
+        return out
 
     def carried_walk(self):
         """Each frame, a landmark whose track a repeated image carried gets the tracker's wander of

@@ -171,30 +171,30 @@ def transform(T, p):
     return p @ T[:3, :3].T + T[:3, 3]
 
 
-def one_step_errors(D, W, k, k2, pose_k, pose_k2, depth_max=60.0):
+def moved_points(D, W, k, k2, pose_k, pose_k2, ids, depth_max=60.0):
+    """The tracks ids (seen at k and k2) triangulated at frame k (camera at pose_k), 1 to depth_max m
+    deep, in the camera at pose_k2: the ids kept and their points."""
+    pc = triangulate(D, k, ids)
+    ok = np.isfinite(pc[:, 2]) & (pc[:, 2] > 1.0) & (pc[:, 2] < depth_max)
+    return ids[ok], transform(np.linalg.inv(W[pose_k2]) @ W[pose_k], pc[ok])
+
+
+def one_step_errors(D, W, k, k2, pose_k, pose_k2):
     """Left-pixel errors of points triangulated at frame k (camera at pose_k), seen at frame k2."""
     valid = D["valid"]
     ids = np.nonzero(valid[:, k] & valid[:, k2])[0]
     if len(ids) == 0:
         return ids, np.zeros(0)
-    pc = triangulate(D, k, ids)
-    ok = np.isfinite(pc[:, 2]) & (pc[:, 2] > 1.0) & (pc[:, 2] < depth_max)
-    ids, pc = ids[ok], pc[ok]
-    rel = np.linalg.inv(W[pose_k2]) @ W[pose_k]
-    uv = project(D, transform(rel, pc))
-    err = np.linalg.norm(uv - D["f"][0:2, ids, k2].T, axis=1)
+    ids, q = moved_points(D, W, k, k2, pose_k, pose_k2, ids)
+    err = np.linalg.norm(project(D, q) - D["f"][0:2, ids, k2].T, axis=1)
     return ids, err
 
 
-def step_residuals(D, W, k, k2, pose_k, pose_k2, sel, depth_max=60.0):
+def step_residuals(D, W, k, k2, pose_k, pose_k2, sel):
     """u, v and disparity residuals (px) at frame k2 of the tracks sel seen at k and k2: triangulated
     at k (camera at pose_k), moved to pose_k2."""
     valid, f, K, b = D["valid"], D["f"], D["K"], D["b"]
-    ids = np.intersect1d(np.nonzero(valid[:, k] & valid[:, k2])[0], sel)
-    pc = triangulate(D, k, ids)
-    ok = np.isfinite(pc[:, 2]) & (pc[:, 2] > 1.0) & (pc[:, 2] < depth_max)
-    ids, pc = ids[ok], pc[ok]
-    q = transform(np.linalg.inv(W[pose_k2]) @ W[pose_k], pc)
+    ids, q = moved_points(D, W, k, k2, pose_k, pose_k2, np.intersect1d(np.nonzero(valid[:, k] & valid[:, k2])[0], sel))
     uv = project(D, q)
     disp = K[0, 0] * b / q[:, 2]
     seen = f[:, ids, k2]

@@ -597,23 +597,30 @@ int vl_sim_init(vl_sim_t *sim, const vl_sim_config_t *cfg)
 #define VL_SIM_FAR_DEPTH 1e4
 
 /** True [u_left, v, u_right, depth] of a world point seen from a pose; 1 when observable. */
-static int project(const vl_sim_t *sim, const vl_sim_pose_t *pose, const double x[3], int far, double px[4])
+/** The world point x in the observations' camera frame at pose. */
+static void camera_point(const vl_sim_t *sim, const vl_sim_pose_t *pose, const double x[3], double cam[3])
 {
-    const vl_sim_config_t *c = &sim->cfg;
-    const vl_calibration_t *cal = &sim->obs_calib;
-    const double *T = cal->cam_T_imu;
+    const double *T = sim->obs_calib.cam_T_imu;
     const double d[3] = {x[0] - pose->p[0], x[1] - pose->p[1], x[2] - pose->p[2]};
-    const double max_depth = far ? VL_SIM_FAR_DEPTH : c->max_depth;
-    double b[3], cam[3];
-    double lo_u, hi_u, lo_v, hi_v;
+    double b[3];
     int i;
-
     for (i = 0; i < 3; ++i) { /* b = R^T d: the point in the IMU frame */
         b[i] = pose->R[i] * d[0] + pose->R[3 + i] * d[1] + pose->R[6 + i] * d[2];
     }
     for (i = 0; i < 3; ++i) {
         cam[i] = T[4 * i] * b[0] + T[4 * i + 1] * b[1] + T[4 * i + 2] * b[2] + T[4 * i + 3];
     }
+}
+
+static int project(const vl_sim_t *sim, const vl_sim_pose_t *pose, const double x[3], int far, double px[4])
+{
+    const vl_sim_config_t *c = &sim->cfg;
+    const vl_calibration_t *cal = &sim->obs_calib;
+    const double max_depth = far ? VL_SIM_FAR_DEPTH : c->max_depth;
+    double cam[3];
+    double lo_u, hi_u, lo_v, hi_v;
+
+    camera_point(sim, pose, x, cam);
     if (!(cam[2] > c->min_depth && cam[2] < max_depth)) {
         return 0;
     }
@@ -790,19 +797,11 @@ static void jump(vl_sim_t *sim, vl_sim_point_t *pt, const vl_sim_pose_t *k1)
 {
     const vl_calibration_t *cal = &sim->obs_calib;
     const double *T = cal->cam_T_imu;
-    double y[3], d[3], b[3], cam[3], moved[3], back[3];
+    double y[3], b[3], cam[3], moved[3], back[3];
     double u, v, disp, z;
     int i;
     point_position(pt, k1->utime, y);
-    for (i = 0; i < 3; ++i) {
-        d[i] = y[i] - k1->p[i];
-    }
-    for (i = 0; i < 3; ++i) { /* the IMU frame, then the camera's */
-        b[i] = k1->R[i] * d[0] + k1->R[3 + i] * d[1] + k1->R[6 + i] * d[2];
-    }
-    for (i = 0; i < 3; ++i) {
-        cam[i] = T[4 * i] * b[0] + T[4 * i + 1] * b[1] + T[4 * i + 2] * b[2] + T[4 * i + 3];
-    }
+    camera_point(sim, k1, y, cam);
     /* Three draws whatever follows, so the stream stays aligned across points. */
     u = sim->cfg.stale_jump * rng_normal(&sim->rng_jump);
     v = sim->cfg.stale_jump * rng_normal(&sim->rng_jump);
