@@ -135,6 +135,24 @@ def test_plan_counts_and_shared_logs(tmp_path):
     assert {c.variant for c in over_starts} == {c.variant for c in sweep}
 
 
+def test_sim_args_reach_every_simulated_log_under_their_own_key(tmp_path):
+    plain = testbed.build_plan(["sim", "realistic"], str(tmp_path / "bin"), str(tmp_path / "nodata"),
+                               str(tmp_path / "logs"))
+    still = testbed.build_plan(["sim", "realistic"], str(tmp_path / "bin"), str(tmp_path / "nodata"),
+                               str(tmp_path / "logs"), sim_args=["--moving-fraction", "0"])
+    assert plain.logs.keys() == still.logs.keys() and len(still.logs) == 46
+    for name, spec in still.logs.items():
+        argv = spec.commands[0]
+        assert argv[argv.index("--out") - 2:argv.index("--out")] == ["--moving-fraction", "0"]
+        assert "--moving-fraction" not in plain.logs[name].commands[0]
+        assert spec.path != plain.logs[name].path  # an ablation never reuses the plain drive's log
+    parser = testbed.build_parser()
+    assert parser.parse_args(["run", "--out", "o", "--sim-args", "--far-fraction 0 --seed 2"]).sim_args == [
+        "--far-fraction", "0", "--seed", "2"]
+    with pytest.raises(SystemExit):
+        parser.parse_args(["run", "--out", "o", "--sim-args", "--out x.lcmlog"])
+
+
 def _build_bin():
     build = os.environ.get("VISLAM_BUILD_DIR") or os.environ.get("VL_BUILD_DIR") or str(REPO / "build")
     bin_dir = Path(build) / "bin"

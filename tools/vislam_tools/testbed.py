@@ -94,6 +94,7 @@ Examples:
   tools/testbed run --out out/testbed/before --bin ../before/build/bin
   tools/testbed run --out out/testbed/after --bin build/bin --suites sim,realistic
   tools/testbed run --out out/testbed/cfg --config my.ini           # a configuration, same build
+  tools/testbed run --out out/testbed/still --suites realistic --sim-args "--moving-fraction 0"
   tools/testbed compare out/testbed/before/testbed.json out/testbed/after/testbed.json
 
 Input logs are cached in --logs (default out/testbed/logs) and made only when missing, as
@@ -146,8 +147,9 @@ def _sha12(path):
 class Plan:
     """The logs and cells of the chosen suites; logs shared between suites are made once."""
 
-    def __init__(self, bin_dir, data_dir, logs_dir, tools_dir):
+    def __init__(self, bin_dir, data_dir, logs_dir, tools_dir, sim_args=()):
         self.bin_dir = bin_dir
+        self.sim_args = list(sim_args)  # appended to every vislam-sim command: a condition's ablation
         self.data_dir = data_dir
         self.logs_dir = logs_dir
         self.tools_dir = tools_dir
@@ -187,7 +189,7 @@ class Plan:
         if name in self.logs:
             return name
         spec = LogSpec(name, "")
-        spec.commands.append([os.path.join(self.bin_dir, "vislam-sim")] + sim_args
+        spec.commands.append([os.path.join(self.bin_dir, "vislam-sim")] + sim_args + self.sim_args
                              + ["--out", "{tmp_log}", "--truth", "{tmp_truth}", "--quiet"])
         spec.path = self._cache_path(name, spec.commands, self.sim_hash)
         spec.truth = spec.path[:-len(".lcmlog")] + ".truth.tum"
@@ -306,9 +308,10 @@ class Plan:
             self._kitti_cell("starts", log, log)
 
 
-def build_plan(suites, bin_dir, data_dir, logs_dir, tools_dir=os.path.join(REPO_ROOT, "tools")):
-    """The Plan of the suites (in SUITES order). A missing data directory skips the data suites."""
-    plan = Plan(bin_dir, data_dir, logs_dir, tools_dir)
+def build_plan(suites, bin_dir, data_dir, logs_dir, tools_dir=os.path.join(REPO_ROOT, "tools"), sim_args=()):
+    """The Plan of the suites (in SUITES order). A missing data directory skips the data suites.
+    sim_args are appended to every vislam-sim command (the sim and realistic suites)."""
+    plan = Plan(bin_dir, data_dir, logs_dir, tools_dir, sim_args)
     for suite in SUITES:
         if suite not in suites:
             continue
@@ -698,7 +701,8 @@ def render_report(result):
     """The Markdown report: the summary table, then one table per suite."""
     out = ["# vislam accuracy test bed", "",
            f"bin `{result['bin']}`, data `{result['data']}`, config `{result.get('config') or '(defaults)'}`, "
-           f"wall time {result.get('wall_seconds', 0):.0f} s", ""]
+           + (f"vislam-sim also `{' '.join(result['sim_args'])}`, " if result.get("sim_args") else "")
+           + f"wall time {result.get('wall_seconds', 0):.0f} s", ""]
     for note in result.get("notes", []):
         out.append(f"- NOTE: {note}")
     if result.get("notes"):
@@ -822,6 +826,16 @@ def _suites(text):
     return names
 
 
+def _sim_args(text):
+    try:
+        args = shlex.split(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"cannot split '{text}': {exc}") from exc
+    if any(a in ("--out", "--truth", "--truth-map", "--quiet") for a in args):
+        raise argparse.ArgumentTypeError("--sim-args sets the drive's conditions; the test bed names its outputs")
+    return args
+
+
 def _positive(text):
     try:
         n = int(text)
@@ -849,6 +863,9 @@ def build_parser():
     p.add_argument("--config", metavar="X.ini", help="passed to every vislam-run")
     p.add_argument("--suites", type=_suites, default=list(SUITES), metavar="LIST",
                    help=f"comma-separated, of {','.join(SUITES)} (default all)")
+    p.add_argument("--sim-args", type=_sim_args, default=[], metavar="ARGS",
+                   help="options appended to every vislam-sim command, one quoted string, e.g. "
+                        "\"--moving-fraction 0\" (the simulated logs are cached under their own key)")
     p.add_argument("--jobs", type=_positive, default=2, metavar="N", help="parallel runs (default 2)")
     p.add_argument("--logs", default=os.path.join(REPO_ROOT, "out", "testbed", "logs"), metavar="LOGDIR",
                    help="the input-log cache, shared by runs (default out/testbed/logs)")
@@ -873,7 +890,7 @@ def cmd_run(args):
         os.makedirs(logs_dir, exist_ok=True)
     except OSError as exc:
         raise ToolError(f"cannot create {exc.filename}: {exc.strerror}") from exc
-    plan = build_plan(args.suites, bin_dir, data_dir, logs_dir)
+    plan = build_plan(args.suites, bin_dir, data_dir, logs_dir, sim_args=args.sim_args)
     for note in plan.notes:
         print(f"testbed: note: {note}", file=sys.stderr)
     cmds = execute_plan(plan, out_dir, config, args.jobs)
@@ -881,7 +898,8 @@ def cmd_run(args):
               "truth": c.truth, "dr": c.dr, "vislam_ate": c.vislam_ate, "dr_ate": c.dr_ate,
               "obs_per_frame": c.obs_per_frame, "log": plan.logs[c.log].path, "notes": c.notes}
              for c in plan.cells]
-    result = {"testbed": 1, "bin": bin_dir, "data": data_dir, "config": config, "logs": logs_dir,
+    result = {"testbed": 1, "bin": bin_dir, "data": data_dir, "config": config, "sim_args": args.sim_args,
+              "logs": logs_dir,
               "suites": args.suites, "notes": plan.notes, "summary": summarize(cells), "cells": cells,
               "commands": os.path.join(out_dir, "commands.sh"),
               "wall_seconds": round(time.monotonic() - start, 1)}
