@@ -405,12 +405,24 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         e->counters.frames_repeated++;
     }
     const int had_frame = e->have_frame;
-    e->num_prev_obs = count;
-    memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
 
     /* 1. Predict to the frame; the steps since the last frame reach the whole of P. */
     vl_predict_to(e, frame->utime);
     vl_predict_settle(e);
+    /* A sparse frame's velocity noise is matched on its tracks' two views before the update;
+     * a repeated image, or one after it, shows one step of motion where the clock shows two. */
+    e->velocity_matched = 0;
+    if (e->cfg.adaptive_noise && e->cfg.mode == VL_MODE_SLAM) {
+        vl_noise_observe_stereo_rows(e, frame, count);
+        if (had_frame && !repeated && !e->prev_frame_repeated) {
+            e->velocity_matched = vl_noise_adapt_velocity_two_view(e, frame, count);
+        }
+    }
+    e->step_noise_time2 = 0.0;
+    e->step_time = 0.0;
+    e->prev_frame_repeated = repeated;
+    e->num_prev_obs = count;
+    memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
     const double frame_dt = e->have_frame ? (double)vl_utime_diff(frame->utime, e->last_frame_utime) * 1e-6 : 0.0;
     e->last_frame_utime = frame->utime;
     e->have_frame = 1;

@@ -13,13 +13,8 @@
 
 /* Rows of evidence the pixel noise estimate averages over (its forgetting scale). */
 #define VL_PIXEL_NOISE_MEMORY 1000.0
-/* Median of the chi-square distribution with one degree of freedom: a median of squares to a variance. */
-#define VL_CHI2_1_MEDIAN 0.455
 /* Largest pixel variance sample, in variances in use: 10 sigma (lower caps cost the sparsest noisy cells). */
 #define VL_PIXEL_SAMPLE_CAP 100.0
-/* Observations from which a frame determines the pose on its own (48 rows for 6 unknowns): its
- * correction is then a sample of the pose error whatever the prior and the pixel noise say. */
-#define VL_VELOCITY_DENSE_FRAME 16u
 /* Step of the velocity noise in log-variance per dense frame (README, Accuracy). */
 #define VL_VELOCITY_NOISE_GAIN 0.05
 /* Step of a sparse frame that removed all of the block's prior variance. */
@@ -32,16 +27,15 @@
 /* Variance factor applied when frame after frame contradicts the prior. */
 #define VL_NOISE_WIDEN_ON_CONTRADICTION 4.0
 
-/* Keeps a variance within the adaptation's bounds around its configured value. */
-static double clamp_var(double var, double configured_std)
+double vl_noise_clamp_var(double var, double configured_std)
 {
     const double f = VL_NOISE_ADAPT_RANGE;
     const double lo = configured_std * configured_std / (f * f), hi = configured_std * configured_std * f * f;
     return var < lo ? lo : (var > hi ? hi : var);
 }
 
-/* The k-th smallest of v[0..n) (0-based); reorders v. Quickselect with a middle pivot: deterministic. */
-static double select_kth(double *v, uint32_t n, uint32_t k)
+/* Quickselect with a middle pivot: deterministic. */
+double vl_noise_select_kth(double *v, uint32_t n, uint32_t k)
 {
     uint32_t lo = 0, hi = n - 1u;
     while (lo < hi) {
@@ -130,9 +124,9 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
     for (uint32_t i = 0; i < n; ++i) {
         samples[i] = samples[i] > cap ? cap : samples[i];
     }
-    const double sample = select_kth(samples, n, n / 2u) / VL_CHI2_1_MEDIAN;
+    const double sample = vl_noise_select_kth(samples, n, n / 2u) / VL_NOISE_CHI2_1_MEDIAN;
     const double w = 1.0 - exp(-(double)(n / VL_OBS_DIM) / VL_PIXEL_NOISE_MEMORY);
-    e->pixel_var = clamp_var((1.0 - w) * e->pixel_var + w * sample, e->cfg.pixel_noise);
+    e->pixel_var = vl_noise_clamp_var((1.0 - w) * e->pixel_var + w * sample, e->cfg.pixel_noise);
 }
 
 /*
@@ -156,6 +150,13 @@ static double log_ratio_bias(double k)
     return (1.0 - f) * vl_log_ratio_bias[i] + f * vl_log_ratio_bias[i + 1];
 }
 
+double vl_noise_log_ratio_step(double ratio, double k)
+{
+    ratio = ratio < VL_VELOCITY_RATIO_MIN ? VL_VELOCITY_RATIO_MIN
+                                          : (ratio > VL_VELOCITY_RATIO_MAX ? VL_VELOCITY_RATIO_MAX : ratio);
+    return log(ratio) + log_ratio_bias(k);
+}
+
 /*
  * Covariance matching for the velocity noise on the pose correction: for a
  * consistent filter E[dx dx^T] = P- - P+ = M on the pose block. More correction
@@ -163,7 +164,7 @@ static double log_ratio_bias(double k)
  * small), less means too timid. Each variance moves by a fraction of log(ratio)
  * plus that logarithm's bias (zero on average when the filter is right).
  *
- * A dense frame (VL_VELOCITY_DENSE_FRAME observations used) determines the pose
+ * A dense frame (VL_NOISE_DENSE_FRAME observations used) determines the pose
  * by itself, so its correction samples the pose error whatever the prior. It is
  * matched in the body frame, where the velocity noise enters (the pose error's
  * coordinates are the world's, in which a turn about the vehicle shows as a
@@ -173,7 +174,10 @@ static double log_ratio_bias(double k)
  * the world coordinates and a step weighted by the share of the block's prior
  * variance it removed, which is large early in a drive and small once the
  * unobservable drift dominates the prior: sparse frames set the noise early and
- * then hold it. Both measured best of the variants tried (README, Accuracy).
+ * then hold it. Both measured best of the variants tried (README, Accuracy). A
+ * sparse frame matched on its two views before the update
+ * (vl_noise_adapt_velocity_two_view) is left alone here; the world-frame rule
+ * remains for frames that fused few of many observations (a drive's first frames).
  */
 void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uint32_t used)
 {
@@ -187,7 +191,10 @@ void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uin
         prior[i / 3] += prior_pose[7 * i];
         dx[i] = e->work_dx[i];
     }
-    const int dense = used >= VL_VELOCITY_DENSE_FRAME;
+    const int dense = used >= VL_NOISE_DENSE_FRAME;
+    if (!dense && e->velocity_matched) {
+        return; /* matched on the frame's two views before the update */
+    }
     if (dense) {
         double Ad_inv[36], AM[36];
         vl_se3_adjoint_inverse(e->R, e->p, Ad_inv);
@@ -211,12 +218,10 @@ void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uin
             !(spread > 0.0)) {
             continue;
         }
-        double ratio = seen / expected;
-        ratio = ratio < VL_VELOCITY_RATIO_MIN ? VL_VELOCITY_RATIO_MIN
-                                              : (ratio > VL_VELOCITY_RATIO_MAX ? VL_VELOCITY_RATIO_MAX : ratio);
         const double gain = dense ? VL_VELOCITY_NOISE_GAIN : VL_VELOCITY_SPARSE_GAIN * (removed[b] / prior[b]);
-        *var[b] =
-            clamp_var(*var[b] * exp(gain * (log(ratio) + log_ratio_bias(expected * expected / spread))), configured[b]);
+        *var[b] = vl_noise_clamp_var(
+            *var[b] * exp(gain * vl_noise_log_ratio_step(seen / expected, expected * expected / spread)),
+            configured[b]);
     }
 }
 
@@ -225,7 +230,7 @@ void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uin
 void vl_noise_widen(vl_estimator_t *e)
 {
     const double f = VL_NOISE_WIDEN_ON_CONTRADICTION;
-    e->linear_velocity_var = clamp_var(e->linear_velocity_var * f, e->cfg.linear_velocity_noise);
-    e->angular_velocity_var = clamp_var(e->angular_velocity_var * f, e->cfg.angular_velocity_noise);
-    e->pixel_var = clamp_var(e->pixel_var * f, e->cfg.pixel_noise);
+    e->linear_velocity_var = vl_noise_clamp_var(e->linear_velocity_var * f, e->cfg.linear_velocity_noise);
+    e->angular_velocity_var = vl_noise_clamp_var(e->angular_velocity_var * f, e->cfg.angular_velocity_noise);
+    e->pixel_var = vl_noise_clamp_var(e->pixel_var * f, e->cfg.pixel_noise);
 }

@@ -16,6 +16,11 @@
 #define VL_NOISE_ADAPT_RANGE 100.0
 /** Distrusted frames in a row from which the prior counts as overconfident. */
 #define VL_NOISE_CONTRADICTION_RUN 2u
+/** Observations from which a frame determines the pose on its own (48 rows for 6 unknowns): its
+ * correction is then a sample of the pose error whatever the prior and the pixel noise say. */
+#define VL_NOISE_DENSE_FRAME 16u
+/** Median of the chi-square distribution with one degree of freedom: a median of squares to a variance. */
+#define VL_NOISE_CHI2_1_MEDIAN 0.455
 
 /**
  * Pixel noise from the post-fit residuals of the frame's rows after an update
@@ -38,5 +43,37 @@ void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uin
 
 /** A frame that contradicts the prior after others did: widens all three noise levels. */
 void vl_noise_widen(vl_estimator_t *e);
+
+/**
+ * The stereo rows' white pixel noise (e->stereo_row_var, per coordinate) from the
+ * frame's v_left - v_right: a rectified pair's two rows agree whatever the pose,
+ * so their difference is pixel noise alone. A median per frame, averaged over
+ * VL_STEREO_ROW_MEMORY observations (vl_noise_two_view.c).
+ */
+void vl_noise_observe_stereo_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count);
+
+/**
+ * Velocity noise of a sparse frame (fewer than VL_NOISE_DENSE_FRAME
+ * observations) from its tracks' two views, the previous frame's (e->prev_obs,
+ * at the pose e->frame_R, e->frame_p) and this one's at the predicted pose,
+ * before the update. Returns 1 when it matched (vl_noise_adapt_velocity then
+ * leaves the frame alone), 0 when the frame is dense or gave too little.
+ */
+int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count);
+
+/* Shared by the adaptation rules. */
+
+/** A variance kept within VL_NOISE_ADAPT_RANGE of its configured std, either way. */
+double vl_noise_clamp_var(double var, double configured_std);
+
+/** The k-th smallest of v[0..n) (0-based); reorders v. */
+double vl_noise_select_kth(double *v, uint32_t n, uint32_t k);
+
+/**
+ * Step of a log-variance matched on a seen-to-expected spread ratio at k
+ * effective degrees of freedom: log(ratio), ratio bounded, plus that logarithm's
+ * bias, so that it averages zero when the filter is right.
+ */
+double vl_noise_log_ratio_step(double ratio, double k);
 
 #endif /* VISLAM_VL_NOISE_H */

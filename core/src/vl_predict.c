@@ -65,6 +65,8 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
     const double sv2 = e->linear_velocity_var * noise_share;
     const double sw2 = e->angular_velocity_var * noise_share;
     const double noise_var[6] = {sv2, sv2, sv2, sw2, sw2, sw2};
+    e->step_noise_time2 += tau * tau * noise_share;
+    e->step_time += tau;
     const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
     const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
     const double offset_var[6] = {qv, qv, qv, qw, qw, qw};

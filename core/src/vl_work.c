@@ -25,6 +25,10 @@
 #define VL_WORK_CARRIED_WALK 120u
 /* Moving one landmark by a correction: two 3x3 products and a sum. */
 #define VL_WORK_LANDMARK_CORRECTION 39u
+/* One track's two views: triangulation, projection, the 3x3 weight, whitening [H r] and the
+ * 6x6 normal equations; then the 6x6 inverse and the two blocks' matching. */
+#define VL_WORK_TWO_VIEW_PAIR 700u
+#define VL_WORK_TWO_VIEW_FIT 900u
 
 static void add(vl_estimator_t *e, uint64_t *stage, uint64_t flops)
 {
@@ -129,6 +133,18 @@ void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint
     add(e, &e->work.update, flops);
     e->work.state_dim = n;
     e->work.rows += 3u * k;
+}
+
+void vl_work_stereo_rows(vl_estimator_t *e, uint32_t count)
+{
+    add(e, &e->work.update, (uint64_t)count * 10u);
+}
+
+void vl_work_two_view(vl_estimator_t *e, uint32_t count, uint32_t previous, uint32_t pairs)
+{
+    /* The id lookup compares each observation with the previous frame's: one operation each. */
+    add(e, &e->work.update,
+        (uint64_t)count * previous + (uint64_t)pairs * VL_WORK_TWO_VIEW_PAIR + VL_WORK_TWO_VIEW_FIT);
 }
 
 void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued)

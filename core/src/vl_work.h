@@ -39,6 +39,12 @@ void vl_work_ransac(vl_estimator_t *e, uint32_t n, uint32_t k, uint32_t hypothes
 /** The joint update with k observations on n states, then (adapted) the noise adaptation over the k_frame rows it reads. */
 void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint32_t k_frame);
 
+/** The stereo rows' white noise: a sample per observation and their median. */
+void vl_work_stereo_rows(vl_estimator_t *e, uint32_t count);
+
+/** The sparse frames' two-view velocity noise matching: the track lookup and the fit of pairs tracks. */
+void vl_work_two_view(vl_estimator_t *e, uint32_t count, uint32_t previous, uint32_t pairs);
+
 /** The rescue pass: checked observations re-linearized and gated, then the joint update of the rescued ones. */
 void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued);
 

@@ -400,6 +400,14 @@ typedef struct {
     double pixel_var;            /**< px^2 */
     uint32_t reassociated_run;   /**< consecutive frames distrusted as re-associations */
 
+    /** The sparse frames' two-view velocity noise matching (vl_noise_two_view.c). */
+    double stereo_row_var;      /**< px^2 per coordinate: white pixel noise from v_left - v_right, 0 until seen */
+    double stereo_row_evidence; /**< observations stereo_row_var averages over */
+    double step_noise_time2;    /**< s^2: sum of tau^2 x noise share over the prediction steps since the last frame */
+    double step_time;           /**< s: sum of tau over the same steps */
+    int prev_frame_repeated;    /**< the previous accepted frame repeated the one before it */
+    int velocity_matched;       /**< this frame's velocity noise was matched on its two views */
+
     /** The pose after the previous accepted frame: the step to a repeated image (repeat_anchor_noise). */
     double frame_R[9]; /**< world-from-IMU rotation, row-major */
     double frame_p[3]; /**< m */

@@ -1,0 +1,385 @@
+/*
+ * The velocity noise of sparse frames, matched on two views. A track seen in
+ * the previous frame and in this one, triangulated in the previous camera and
+ * moved by the motion predicted between the two frames, predicts this frame's
+ * pixels. The residuals of a frame's tracks share one error, that of the
+ * predicted motion (the input noise over the interval and the offsets' error);
+ * a weighted least-squares fit recovers it with its covariance, and its spread
+ * against what the filter expects is covariance matching for the velocity
+ * noise. Unlike the update's correction, neither the landmarks' covariance nor
+ * the adapted pixel noise enters it (on a sparse frame the correction cannot
+ * tell those from the velocity noise, README, Accuracy): the residuals are
+ * weighed with the stereo rows' own white noise, the spread of
+ * v_left - v_right, which no state error enters.
+ */
+#include "vl_noise.h"
+
+#include <math.h>
+
+#include "vl_camera.h"
+#include "vl_estimator_internal.h"
+#include "vl_guard.h"
+#include "vl_se3.h"
+#include "vl_stereo.h"
+#include "vl_work.h"
+
+/* Observations the stereo rows' white noise averages over (its forgetting scale). */
+#define VL_STEREO_ROW_MEMORY 1000.0
+/* Largest stereo-row sample, in variances of the estimate: 3 sigma (a Gaussian exceeds it 0.3 % of
+ * the time, which lowers the mean by under 1 %). */
+#define VL_STEREO_ROW_CAP 9.0
+/* Tracks in both views from which a frame's motion error is fitted (6 unknowns, 3 rows each). */
+#define VL_TWO_VIEW_MIN_PAIRS 3u
+/* Step of the velocity noise in log-variance per frame, weighted by the noise's share of the
+ * expected spread: the dense frames' step (VL_VELOCITY_NOISE_GAIN in vl_noise.c). */
+#define VL_TWO_VIEW_GAIN 0.05
+
+void vl_noise_observe_stereo_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count)
+{
+    double samples[VL_MAX_FRAME_FEATURES];
+    uint32_t n = 0;
+    vl_work_stereo_rows(e, count);
+    for (uint32_t i = 0; i < count; ++i) {
+        const vl_stereo_obs_t *o = &frame->obs[i];
+        if (vl_guard_observation_valid(o)) {
+            const double d = o->v_left - o->v_right;
+            samples[n++] = 0.5 * d * d; /* v_left - v_right has twice one coordinate's variance */
+        }
+    }
+    if (n < VL_TWO_VIEW_MIN_PAIRS) {
+        return;
+    }
+    double sample;
+    if (e->stereo_row_evidence > 0.0) {
+        /* The mean of samples capped at VL_STEREO_ROW_CAP times the estimate: a mismatched
+         * observation's rows can disagree by anything, and a median of a sparse frame's few
+         * samples is biased (of 2, the larger; of 3, 1.5 times the variance on average). */
+        const double cap = VL_STEREO_ROW_CAP * e->stereo_row_var;
+        double sum = 0.0;
+        for (uint32_t i = 0; i < n; ++i) {
+            sum += samples[i] < cap ? samples[i] : cap;
+        }
+        sample = sum / (double)n;
+    } else {
+        sample = vl_noise_select_kth(samples, n, n / 2u) / VL_NOISE_CHI2_1_MEDIAN; /* the first estimate */
+    }
+    if (!(sample > 0.0)) {
+        return; /* rows that agree exactly (a tracker that copies v_left) tell nothing */
+    }
+    /* Evidence-weighted: the first frames set the estimate, later ones refine it. */
+    const double held = e->stereo_row_evidence * exp(-(double)n / VL_STEREO_ROW_MEMORY);
+    const double w = (double)n / (held + (double)n);
+    e->stereo_row_var = (1.0 - w) * e->stereo_row_var + w * sample;
+    e->stereo_row_evidence = held + (double)n;
+}
+
+/* The track's observation in the previous frame, or NULL. */
+static const vl_stereo_obs_t *previous_observation(const vl_estimator_t *e, int32_t id)
+{
+    for (uint32_t j = 0; j < e->num_prev_obs; ++j) {
+        if (e->prev_obs[j].id == id) {
+            return &e->prev_obs[j];
+        }
+    }
+    return NULL;
+}
+
+/* Lower Cholesky factor of a symmetric 3x3 W (row-major); -1 when not positive definite. */
+static int cholesky3(const double W[9], double L[9])
+{
+    for (int j = 0; j < 3; ++j) {
+        double d = W[4 * j];
+        for (int k = 0; k < j; ++k) {
+            d -= L[3 * j + k] * L[3 * j + k];
+        }
+        if (!(d > 0.0)) {
+            return -1;
+        }
+        L[4 * j] = sqrt(d);
+        for (int i = j + 1; i < 3; ++i) {
+            double s = W[3 * i + j];
+            for (int k = 0; k < j; ++k) {
+                s -= L[3 * i + k] * L[3 * j + k];
+            }
+            L[3 * i + j] = s / L[4 * j];
+        }
+        for (int i = 0; i < j; ++i) {
+            L[3 * i + j] = 0.0;
+        }
+    }
+    return 0;
+}
+
+/* x <- L^-1 x for each of the ncols columns of the 3 x ncols row-major x. */
+static void forward3(const double L[9], double *x, int ncols)
+{
+    for (int c = 0; c < ncols; ++c) {
+        x[c] /= L[0];
+        x[ncols + c] = (x[ncols + c] - L[3] * x[c]) / L[4];
+        x[2 * ncols + c] = (x[2 * ncols + c] - L[6] * x[c] - L[7] * x[ncols + c]) / L[8];
+    }
+}
+
+/* Inverse of a symmetric positive definite 6x6 A (row-major) by Cholesky; -1 when not. */
+static int inverse6(const double A[36], double Ainv[36])
+{
+    double L[36] = {0};
+    for (int j = 0; j < 6; ++j) {
+        double d = A[7 * j];
+        for (int k = 0; k < j; ++k) {
+            d -= L[6 * j + k] * L[6 * j + k];
+        }
+        if (!(d > 0.0)) {
+            return -1;
+        }
+        L[7 * j] = sqrt(d);
+        for (int i = j + 1; i < 6; ++i) {
+            double s = A[6 * i + j];
+            for (int k = 0; k < j; ++k) {
+                s -= L[6 * i + k] * L[6 * j + k];
+            }
+            L[6 * i + j] = s / L[7 * j];
+        }
+    }
+    for (int c = 0; c < 6; ++c) {
+        double y[6], x[6];
+        for (int i = 0; i < 6; ++i) {
+            double s = (i == c) ? 1.0 : 0.0;
+            for (int k = 0; k < i; ++k) {
+                s -= L[6 * i + k] * y[k];
+            }
+            y[i] = s / L[7 * i];
+        }
+        for (int i = 5; i >= 0; --i) {
+            double s = y[i];
+            for (int k = i + 1; k < 6; ++k) {
+                s -= L[6 * k + i] * x[k];
+            }
+            x[i] = s / L[7 * i];
+        }
+        for (int i = 0; i < 6; ++i) {
+            Ainv[6 * i + c] = x[i];
+        }
+    }
+    return 0;
+}
+
+/* One track's two views: its terms of the normal equations and its agreement with the prior. */
+typedef struct {
+    double info[21]; /* H^T W^-1 H, upper triangle by rows */
+    double b[6];     /* H^T W^-1 r */
+    double rr;       /* r^T W^-1 r */
+    double chi2;     /* r^T (W + H Q H^T)^-1 r, Q the motion error the filter expects */
+} vl_two_view_track_t;
+
+/* Index of (i, j), i <= j, in a 6x6 upper triangle stored by rows. */
+static int upper6(int i, int j)
+{
+    return 6 * i - i * (i - 1) / 2 + (j - i);
+}
+
+/*
+ * One track's residual r = y - h(predicted motion, previous triangulation)
+ * = H delta + e in the motion error delta (right perturbation of the predicted
+ * pose), e this observation's pixel noise and the previous one's carried through
+ * its triangulation, both at the stereo rows' white noise (nv). q is the
+ * diagonal of the motion error's expected covariance. 0 when the track gave terms.
+ */
+static int track_terms(const vl_estimator_t *e, const double Rc[9], const double tc[3], const double nv[3],
+                       const double q[6], const vl_stereo_obs_t *prev, const vl_stereo_obs_t *now,
+                       vl_two_view_track_t *t)
+{
+    const vl_calibration_t *cal = &e->cfg.calibration;
+    double y0[3], y1[3], c[3], dc_dy[9], d[3], imu[3], pw[3], RRc[9], dpw_dy[9];
+    vl_stereo_compress(prev, y0);
+    vl_stereo_compress(now, y1);
+    vl_stereo_triangulate(cal, y0, c, dc_dy);
+    for (int i = 0; i < 3; ++i) {
+        d[i] = c[i] - tc[i];
+    }
+    vl_matmul_at(Rc, d, imu, 3, 3, 1); /* the point in the previous IMU frame */
+    vl_matmul(e->frame_R, imu, pw, 3, 3, 1);
+    for (int i = 0; i < 3; ++i) {
+        pw[i] += e->frame_p[i];
+    }
+    vl_matmul_bt(e->frame_R, Rc, RRc, 3, 3, 3);
+    vl_matmul(RRc, dc_dy, dpw_dy, 3, 3, 3);
+
+    double y_pred[3], H[18], dy_dpw[9];
+    if (vl_camera_project_world(e, pw, y_pred, H, dy_dpw) != 0) {
+        return -1;
+    }
+    double A[9], AN[9], W[9], S[9], L[9];
+    vl_matmul(dy_dpw, dpw_dy, A, 3, 3, 3); /* this frame's pixels from the previous frame's */
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            AN[3 * i + j] = A[3 * i + j] * nv[j];
+        }
+    }
+    vl_matmul_bt(AN, A, W, 3, 3, 3);
+    for (int i = 0; i < 3; ++i) {
+        W[4 * i] += nv[i];
+    }
+    double HQ[18], r[3];
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 6; ++j) {
+            HQ[6 * i + j] = H[6 * i + j] * q[j];
+        }
+        r[i] = y1[i] - y_pred[i];
+    }
+    vl_matmul_bt(HQ, H, S, 3, 6, 3);
+    for (int i = 0; i < 9; ++i) {
+        S[i] += W[i];
+    }
+    t->chi2 = vl_mahalanobis3(S, r);
+    if (cholesky3(W, L) != 0) {
+        return -1;
+    }
+    double Hr[21]; /* [H | r], whitened together */
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 6; ++j) {
+            Hr[7 * i + j] = H[6 * i + j];
+        }
+        Hr[7 * i + 6] = r[i];
+    }
+    forward3(L, Hr, 7);
+    for (int i = 0; i < 6; ++i) {
+        for (int j = i; j < 6; ++j) {
+            t->info[upper6(i, j)] = Hr[i] * Hr[j] + Hr[7 + i] * Hr[7 + j] + Hr[14 + i] * Hr[14 + j];
+        }
+        t->b[i] = Hr[i] * Hr[6] + Hr[7 + i] * Hr[13] + Hr[14 + i] * Hr[20];
+    }
+    t->rr = Hr[6] * Hr[6] + Hr[13] * Hr[13] + Hr[20] * Hr[20];
+    return 0;
+}
+
+/*
+ * One block (linear or angular) of the fitted motion error: its spread against
+ * the expected one, the fit's own covariance plus the input noise over the
+ * interval (the velocity variance x sum tau^2, per axis) and the offsets' error
+ * (their variance x (sum tau)^2), moves the velocity variance by a step weighted
+ * by the noise's share of that expectation (a block the fit leaves uncertain, or
+ * that the offsets' error dominates, says little about the noise).
+ */
+static void match_block(vl_estimator_t *e, int block, const double C[36], const double dx[6], const double q[6],
+                        double *var, double configured_std)
+{
+    double M[9], seen = 0.0;
+    const double noise = *var * e->step_noise_time2;
+    for (int i = 0; i < 3; ++i) {
+        seen += dx[3 * block + i] * dx[3 * block + i];
+        for (int j = 0; j < 3; ++j) {
+            M[3 * i + j] = C[6 * (3 * block + i) + 3 * block + j];
+        }
+        M[4 * i] += q[3 * block + i];
+    }
+    const double expected = M[0] + M[4] + M[8];
+    double spread = 0.0;
+    for (int i = 0; i < 9; ++i) {
+        spread += M[i] * M[i];
+    }
+    if (!(expected > 0.0) || !(spread > 0.0) || !(noise > 0.0)) {
+        return;
+    }
+    const double gain = VL_TWO_VIEW_GAIN * 3.0 * noise / expected;
+    *var = vl_noise_clamp_var(*var * exp(gain * vl_noise_log_ratio_step(seen / expected, expected * expected / spread)),
+                              configured_std);
+}
+
+/* The 99 % quantile of chi-square with k >= 1 degrees of freedom (Wilson and Hilferty's cube:
+ * within 2 % of the exact value from k = 3 on; at k = 1 and 2 the exact 6.63 and 9.21). */
+static double chi2_quantile_99(uint32_t k)
+{
+    if (k == 0u) {
+        return 0.0;
+    }
+    if (k <= 2u) {
+        return k == 1u ? 6.635 : 9.210;
+    }
+    const double h = 2.0 / (9.0 * (double)k), c = 1.0 - h + 2.3263 * sqrt(h);
+    return (double)k * c * c * c;
+}
+
+/* The motion error the filter expects over the interval, per axis of the body frame: the input
+ * noise (the velocity variance x sum tau^2) and the offsets' error (their variance x (sum tau)^2). */
+static void expected_motion_error(const vl_estimator_t *e, double q[6])
+{
+    for (int i = 0; i < 6; ++i) {
+        q[i] = (i < 3 ? e->linear_velocity_var : e->angular_velocity_var) * e->step_noise_time2;
+        if (e->cfg.estimate_input_offsets) {
+            const uint32_t col = (i < 3 ? VL_IDX_OFFSET_LIN : VL_IDX_OFFSET_ANG - 3u) + (uint32_t)i;
+            q[i] += vl_P_value(e, col, col) * e->step_time * e->step_time;
+        }
+    }
+}
+
+int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count)
+{
+    if (count >= VL_NOISE_DENSE_FRAME || !(e->stereo_row_var > 0.0) || !(e->step_noise_time2 > 0.0)) {
+        return 0;
+    }
+    double Rc[9], tc[3], nv[3], q[6];
+    vl_camera_extrinsics(&e->cfg.calibration, Rc, tc);
+    vl_stereo_noise_var(e->stereo_row_var, nv);
+    expected_motion_error(e, q);
+    vl_two_view_track_t tracks[VL_NOISE_DENSE_FRAME];
+    uint32_t n = 0, contradicting = 0;
+    for (uint32_t i = 0; i < count; ++i) {
+        const vl_stereo_obs_t *now = &frame->obs[i];
+        if (!vl_guard_observation_valid(now) || !(now->u_left - now->u_right >= e->cfg.min_disparity)) {
+            continue;
+        }
+        const vl_stereo_obs_t *prev = previous_observation(e, now->id);
+        if (prev == NULL || !vl_guard_observation_valid(prev) ||
+            !(prev->u_left - prev->u_right >= e->cfg.min_disparity)) {
+            continue;
+        }
+        if (track_terms(e, Rc, tc, nv, q, prev, now, &tracks[n]) == 0) {
+            contradicting += !(tracks[n].chi2 <= e->cfg.gate_chi2);
+            n++;
+        }
+    }
+    vl_work_two_view(e, count, e->num_prev_obs, n);
+    /* A track that alone contradicts the expected motion moved itself (a moving object, a
+     * re-association): it is left out. When most do, the motion was off, and all count. */
+    const int drop = 2u * contradicting < n && e->cfg.gate_chi2 > 0.0;
+    double info[36] = {0}, b[6] = {0}, rr = 0.0;
+    uint32_t used = 0;
+    for (uint32_t t = 0; t < n; ++t) {
+        if (drop && !(tracks[t].chi2 <= e->cfg.gate_chi2)) {
+            continue;
+        }
+        for (int i = 0; i < 6; ++i) {
+            for (int j = i; j < 6; ++j) {
+                info[6 * i + j] += tracks[t].info[upper6(i, j)];
+            }
+            b[i] += tracks[t].b[i];
+        }
+        rr += tracks[t].rr;
+        used++;
+    }
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < i; ++j) {
+            info[6 * i + j] = info[6 * j + i];
+        }
+    }
+    double C[36], dx[6];
+    if (used < VL_TWO_VIEW_MIN_PAIRS || inverse6(info, C) != 0) {
+        return 0;
+    }
+    vl_matmul(C, b, dx, 6, 6, 1);
+    /* Tracks that do not agree on one motion at the white noise (a moving object's among
+     * static ones, a re-associated id) would make the fit's error anything: the frame says
+     * nothing about the velocity noise. The fit's residual is chi-square with 3 used - 6
+     * degrees of freedom when they agree. */
+    double fit = rr;
+    for (int i = 0; i < 6; ++i) {
+        fit -= b[i] * dx[i];
+    }
+    if (!(fit <= chi2_quantile_99(3u * used - 6u))) {
+        return 1;
+    }
+    match_block(e, 0, C, dx, q, &e->linear_velocity_var, e->cfg.linear_velocity_noise);
+    match_block(e, 1, C, dx, q, &e->angular_velocity_var, e->cfg.angular_velocity_noise);
+    return 1;
+}
