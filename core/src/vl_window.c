@@ -313,6 +313,42 @@ static int track_consistent(const vl_estimator_t *e, const vl_pending_track_t *t
     return vl_mahalanobis3(S, r) <= e->cfg.gate_chi2;
 }
 
+/*
+ * A landmark a sparse frame admitted at first sight has had no chance to show
+ * that it stands still, and its first update would move the pose (and the
+ * offsets) by whatever it did: a track on a moving object does the most harm
+ * there (README, Accuracy). So its second sighting, before any update uses it,
+ * must agree with its first: the two triangulations at the stereo rows' white
+ * noise, one frame of the velocity noise in between. Without that noise
+ * measured (no adaptation) every track passes.
+ */
+static int second_sight_consistent(const vl_estimator_t *e, uint32_t slot, const vl_stereo_obs_t *o, double dt)
+{
+    if (!(e->stereo_row_var > 0.0) || e->cfg.gate_chi2 <= 0.0) {
+        return 1;
+    }
+    double y[3], pw[3], J[9], nv[3], JN[9], S[9], d[3], lever2 = 0.0;
+    vl_stereo_compress(o, y);
+    vl_camera_triangulate_world(e, y, pw, J);
+    vl_stereo_noise_var(e->stereo_row_var, nv);
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            JN[3 * i + j] = J[3 * i + j] * 2.0 * nv[j]; /* both sightings, each at the white noise */
+        }
+    }
+    vl_matmul_bt(JN, J, S, 3, 3, 3);
+    const double *l = &e->landmark_state[3 * slot];
+    for (int i = 0; i < 3; ++i) {
+        d[i] = pw[i] - l[i];
+        lever2 += (pw[i] - e->p[i]) * (pw[i] - e->p[i]);
+    }
+    const double motion = (e->linear_velocity_var + lever2 * e->angular_velocity_var) * dt * dt;
+    for (int i = 0; i < 3; ++i) {
+        S[4 * i] += motion;
+    }
+    return vl_mahalanobis3(S, d) <= e->cfg.gate_chi2;
+}
+
 static void add_candidate(vl_candidates_t *c, uint32_t obs, double score)
 {
     if (c->count < VL_MAX_FRAME_FEATURES) {
@@ -374,6 +410,13 @@ uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, u
             }
             if (vl_update_make_row(e, (uint32_t)slot, o, &rows[k]) != 0) {
                 e->counters.observations_behind_camera++;
+                continue;
+            }
+            if (count < e->cfg.first_sight_below && s->observations == 2u && s->updates == 0u &&
+                !second_sight_consistent(e, (uint32_t)slot, o, frame_dt)) {
+                e->counters.tracks_inconsistent++;
+                e->work_seen[slot] = VL_SEEN_BROKEN; /* to the map; restarts from this observation */
+                e->work_broken[e->num_broken++] = i;
                 continue;
             }
             e->work_frame_obs[k] = i;
