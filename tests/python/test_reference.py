@@ -116,8 +116,9 @@ def test_reference_agrees_with_repeat_anchor_noise_and_carried_walk(build_dir, t
 def test_reference_agrees_on_a_sparse_drive_with_outliers(build_dir, tmp_path, monkeypatch):
     """The sparsest realistic simulated drive (at most 5 observations a frame, mismatches among them):
     frames of one or two rows whose pixel noise samples are an outlier's own. The reference caps each
-    sample as the core does and admits new tracks at first sight (it agrees), and both matter here:
-    without either in the reference alone the poses move."""
+    sample as the core does, admits new tracks at first sight, matches the velocity noise on the
+    tracks' two views and checks a first-sight landmark at its second sight (it agrees), and each
+    matters here: without any one in the reference alone the poses move."""
     from reference import compare as compare_tool
     from reference import vl_reference
     log = tmp_path / "sparse.lcmlog"
@@ -135,6 +136,17 @@ def test_reference_agrees_on_a_sparse_drive_with_outliers(build_dir, tmp_path, m
     monkeypatch.setattr(vl_reference, "PIXEL_SAMPLE_CAP", float("inf"))
     rc = compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)])
     assert rc == 1
+    monkeypatch.undo()
+    # the two-view velocity noise matching and the second-sight check run on it, in the reference too
+    for name, value in (("TWO_VIEW_MIN_PAIRS", 10 ** 9),
+                        ("Filter._second_sight_consistent", lambda self, slot, o, dt: True)):
+        with monkeypatch.context() as m:
+            if name.startswith("Filter."):
+                m.setattr(vl_reference.Filter, name.split(".")[1], value)
+            else:
+                m.setattr(vl_reference, name, value)
+            rc = compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)])
+            assert rc == 1, name
 
 
 def test_reference_agrees_without_outlier_rejection(build_dir, tmp_path):

@@ -43,6 +43,10 @@ PIXEL_SAMPLE_CAP = 100.0     # a pixel variance sample counts for at most this m
 VELOCITY_DENSE_FRAME = 16     # observations from which a frame determines the pose on its own
 VELOCITY_NOISE_GAIN = 0.05    # log-variance step per dense frame
 VELOCITY_SPARSE_GAIN = 0.1    # per sparse frame (world frame), times the share of the block's prior variance it removed
+STEREO_ROW_MEMORY = 1000.0    # observations the stereo rows' white noise averages over
+STEREO_ROW_CAP = 9.0          # a stereo-row sample counts for at most this many variances of the estimate
+TWO_VIEW_MIN_PAIRS = 3        # tracks in both views from which a sparse frame's motion error is fitted
+TWO_VIEW_GAIN = 0.05          # log-variance step per two-view frame, times the noise's share of the expectation
 VELOCITY_RATIO_MIN, VELOCITY_RATIO_MAX = 0.1, 10.0
 # -E[log clamp(q / k, 0.1, 10)] for q ~ chi-square(k), k = 1, 1.5, 2, 2.5, 3 (numerical integration)
 LOG_RATIO_BIAS = (0.768765, 0.593114, 0.479665, 0.400083, 0.341355)
@@ -310,6 +314,7 @@ class Slot:
     updates: int = 0  # its observations the updates used
     last_update_frame: int = 0  # frame of the last update that used it, else of its admission
     carried: bool = False  # its track went through a repeated image (repeat_track_walk)
+    observations: int = 1  # frames that observed it, its admission included
 
 
 @dataclass
@@ -355,6 +360,12 @@ class Filter:
         self.var_v = cfg["linear_velocity"] ** 2
         self.var_w = cfg["angular_velocity"] ** 2
         self.var_px = cfg["pixel"] ** 2
+        self.var_rows = 0.0         # px^2: the stereo rows' white noise, 0 until measured
+        self.rows_evidence = 0.0    # observations it averages over
+        self.step_t2 = 0.0          # s^2: sum of tau^2 x noise share since the last frame
+        self.step_t = 0.0           # s: sum of tau since the last frame
+        self.prev_repeated = False  # the previous frame repeated the one before it
+        self.velocity_matched = False
         self.state_utime = None  # us; None until the first IMU sample
         self.last_imu_utime = None
         self.held_v = self.held_w = None
@@ -403,6 +414,8 @@ class Filter:
             M = P[:, 6:12] + G @ (0.5 * P[6:12, 6:12])
             P = P + G @ M.T + M @ G.T
         Q = np.diag([self.var_v * noise_share] * 3 + [self.var_w * noise_share] * 3)
+        self.step_t2 += tau * tau * noise_share
+        self.step_t += tau
         P = P + G @ Q @ G.T
         if self.cfg["estimate_input_offsets"]:
             walk = [self.cfg["linear_offset_walk"] ** 2 * tau] * 3 + [self.cfg["angular_offset_walk"] ** 2 * tau] * 3
@@ -484,8 +497,16 @@ class Filter:
             raise ReferenceError("frame over VL_MAX_FRAME_FEATURES: not modelled")
         repeated = self.repeats_previous(frame)
         had_frame = self.last_frame_utime is not None
-        self.prev_frame = frame
         self.predict_to(utime)
+        # a sparse frame's velocity noise, matched on its tracks' two views before the update
+        self.velocity_matched = False
+        if self.cfg["adaptive_noise"] and self.cfg["mode"] == "slam":
+            self.observe_stereo_rows(frame)
+            if had_frame and not repeated and not self.prev_repeated:
+                self.velocity_matched = self.adapt_velocity_two_view(frame)
+        self.step_t2 = self.step_t = 0.0
+        self.prev_repeated = repeated
+        self.prev_frame = frame
         frame_dt = (utime - self.last_frame_utime) * 1e-6 if self.last_frame_utime is not None else 0.0
         self.last_frame_utime = utime
         self.frame_index += 1
@@ -610,11 +631,20 @@ class Filter:
                 if s.seen != SEEN_NONE:
                     continue  # the same id twice in one frame
                 s.seen, s.unseen_frames = SEEN, 0
+                s.observations += 1
                 if not disparity > 0.0:
                     continue
                 row = self.make_row(slot, frame, i)
-                if row is not None:
-                    rows.append(row)
+                if row is None:
+                    continue
+                # a landmark a sparse frame admitted at first sight must agree with itself before
+                # any update uses it (a track on a moving object breaks here)
+                if (len(frame) < self.cfg["first_sight_below"] and s.observations == 2 and s.updates == 0
+                        and not self._second_sight_consistent(slot, o, frame_dt)):
+                    s.seen = SEEN_BROKEN
+                    self.broken_obs.append(i)
+                    continue
+                rows.append(row)
                 continue
             t, duplicate = self._pending_touch(oid)
             if duplicate:
@@ -634,6 +664,18 @@ class Filter:
                 age = min(t.frames_seen - 1, AGE_CAP)
                 candidates.append((i, disparity * (1.0 + AGE_BONUS * age)))
         return rows, candidates
+
+    def _second_sight_consistent(self, slot, o, dt):
+        """Its two triangulations at the stereo rows' white noise (each sighting), plus one frame of
+        the velocity noise at its lever arm, within the update's gate."""
+        if not self.var_rows > 0.0 or self.cfg["gate_chi2"] <= 0.0:
+            return True
+        pw, J = self.triangulate_world(compress(o))
+        S = J @ np.diag(2.0 * stereo_noise(self.var_rows)) @ J.T
+        d = pw - self.L[slot]
+        lever = pw - self.p
+        S = S + np.eye(3) * (self.var_v + float(lever @ lever) * self.var_w) * dt * dt
+        return mahalanobis3(S, d) <= self.cfg["gate_chi2"]
 
     def _pending_touch(self, oid):
         for t in self.pending:
@@ -851,6 +893,95 @@ class Filter:
         w = 1.0 - math.exp(-(len(samples) // 3) / PIXEL_NOISE_MEMORY)
         self.var_px = _clamp_var((1.0 - w) * self.var_px + w * sample, self.cfg["pixel"])
 
+    # ---- the sparse frames' two-view velocity noise (core/src/vl_noise_two_view.c)
+
+    def observe_stereo_rows(self, frame):
+        """(v_left - v_right)^2 / 2 of each valid observation: pixel noise alone. The first frame of
+        3 or more sets the estimate by its median; later ones by their mean, each sample capped at
+        STEREO_ROW_CAP estimates; evidence-weighted over STEREO_ROW_MEMORY observations."""
+        samples = np.array([0.5 * (o[2] - o[4]) ** 2 for o in frame if _valid(o)])
+        n = len(samples)
+        if n < TWO_VIEW_MIN_PAIRS:
+            return
+        if self.rows_evidence > 0.0:
+            sample = float(np.minimum(samples, STEREO_ROW_CAP * self.var_rows).sum()) / n
+        else:
+            sample = np.partition(samples, n // 2)[n // 2] / CHI2_1_MEDIAN
+        if not sample > 0.0:
+            return
+        held = self.rows_evidence * math.exp(-n / STEREO_ROW_MEMORY)
+        w = n / (held + n)
+        self.var_rows = (1.0 - w) * self.var_rows + w * sample
+        self.rows_evidence = held + n
+
+    def adapt_velocity_two_view(self, frame):
+        """A sparse frame's tracks in both views, r = y - h(predicted motion, previous triangulation)
+        = H delta + e (delta the right perturbation of the predicted pose, e both sightings' pixel
+        noise at the stereo rows' estimate): a weighted least-squares fit of delta and its
+        covariance C; each block matched against C plus the expected motion error q (the velocity
+        variance x sum tau^2, the offsets' x (sum tau)^2). Tracks that alone contradict q are left
+        out; a frame whose fit residual exceeds its 99 % chi-square quantile is not matched."""
+        if len(frame) >= VELOCITY_DENSE_FRAME or not self.var_rows > 0.0 or not self.step_t2 > 0.0:
+            return False
+        nv = stereo_noise(self.var_rows)
+        q = np.array([self.var_v * self.step_t2] * 3 + [self.var_w * self.step_t2] * 3)
+        if self.cfg["estimate_input_offsets"]:
+            q = q + np.diag(self.P)[6:12] * self.step_t * self.step_t
+        cal, terms = self.cal, []
+        for o in frame:
+            if not _valid(o) or not o[1] - o[3] >= self.cfg["min_disparity"]:
+                continue
+            prev = next((x for x in self.prev_frame if x[0] == o[0]), None)
+            if prev is None or not _valid(prev) or not prev[1] - prev[3] >= self.cfg["min_disparity"]:
+                continue
+            c, dc_dy = stereo_triangulate(cal, compress(prev))
+            pw = self.frame_R @ (cal.Rc.T @ (c - cal.tc)) + self.frame_p
+            dpw_dy = self.frame_R @ cal.Rc.T @ dc_dy
+            b, cc = self.camera_point(pw)
+            if b is None:
+                continue
+            y_pred, dy_dc = stereo_project(cal, cc)
+            dy_db = dy_dc @ cal.Rc
+            H = -dy_db @ np.hstack([np.eye(3), -hat3(b)])
+            A = dy_db @ self.R.T @ dpw_dy
+            W = A @ np.diag(nv) @ A.T + np.diag(nv)
+            r = compress(o) - y_pred
+            chi2 = mahalanobis3(W + H @ np.diag(q) @ H.T, r)
+            try:
+                L = np.linalg.cholesky(W)
+            except np.linalg.LinAlgError:
+                continue
+            Hw, rw = np.linalg.solve(L, H), np.linalg.solve(L, r)
+            terms.append((Hw.T @ Hw, Hw.T @ rw, float(rw @ rw), chi2))
+        contradicting = sum(not t[3] <= self.cfg["gate_chi2"] for t in terms)
+        drop = 2 * contradicting < len(terms) and self.cfg["gate_chi2"] > 0.0
+        kept = [t for t in terms if not (drop and not t[3] <= self.cfg["gate_chi2"])]
+        if len(kept) < TWO_VIEW_MIN_PAIRS:
+            return False
+        info = sum(t[0] for t in kept)
+        bvec = sum(t[1] for t in kept)
+        try:
+            np.linalg.cholesky(info)
+        except np.linalg.LinAlgError:
+            return False
+        C = np.linalg.inv(info)
+        dx = C @ bvec
+        fit = sum(t[2] for t in kept) - float(bvec @ dx)
+        if not fit <= _chi2_quantile_99(3 * len(kept) - 6):
+            return True
+        for blk, (name, key) in enumerate((("var_v", "linear_velocity"), ("var_w", "angular_velocity"))):
+            sl = slice(3 * blk, 3 * blk + 3)
+            noise = getattr(self, name) * self.step_t2
+            M = C[sl, sl] + np.diag(q[sl])
+            expected = float(np.trace(M))
+            spread = float((M * M).sum())
+            if not expected > 0.0 or not spread > 0.0 or not noise > 0.0:
+                continue
+            ratio = min(max(float(dx[sl] @ dx[sl]) / expected, VELOCITY_RATIO_MIN), VELOCITY_RATIO_MAX)
+            step = TWO_VIEW_GAIN * 3.0 * noise / expected * (math.log(ratio) + log_ratio_bias(expected * expected / spread))
+            setattr(self, name, _clamp_var(getattr(self, name) * math.exp(step), self.cfg[key]))
+        return True
+
     def adapt_velocity_noise(self, prior_pose, used):
         """Covariance matching on the pose correction, E[dx dx^T] = P- - P+ = M: each block's variance
         moves by gain x (log(seen / expected) + bias), bias = -E[log clamp(chi2_k / k, 0.1, 10)] with
@@ -859,6 +990,8 @@ class Filter:
         the world frame, its gain weighted by the share of the block's prior variance it removed."""
         M_world = prior_pose - self.P[:6, :6]
         dense = used >= VELOCITY_DENSE_FRAME
+        if not dense and self.velocity_matched:
+            return  # matched on the frame's two views before the update
         if dense:
             Ad_inv = se3_adjoint(self.R.T, -self.R.T @ self.p)
             M = Ad_inv @ M_world @ Ad_inv.T
@@ -953,6 +1086,22 @@ class Filter:
         self.L = np.vstack([self.L, l])
         self.slots.append(Slot(oid, 0, SEEN, 0, self.frame_index))
         self.counters["landmarks_initialized"] += 1
+
+
+def _valid(o):
+    """vl_guard_observation_valid: a track id and finite pixels."""
+    return o[0] >= 0 and bool(np.all(np.isfinite(o[1:])))
+
+
+def _chi2_quantile_99(k):
+    """The 99 % quantile of chi-square with k degrees of freedom (Wilson and Hilferty from k = 3)."""
+    if k <= 0:
+        return 0.0
+    if k <= 2:
+        return 6.635 if k == 1 else 9.210
+    h = 2.0 / (9.0 * k)
+    c = 1.0 - h + 2.3263 * math.sqrt(h)
+    return k * c * c * c
 
 
 def _symmetric(P):
