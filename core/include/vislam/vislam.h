@@ -244,7 +244,9 @@ typedef struct {
     X(uint64_t, observations_behind_camera, "predicted behind the camera: not used")                                \
     X(uint64_t, landmarks_initialized, "admitted to the window")                                                    \
     X(uint64_t, landmarks_deferred, "admissions postponed: the window was full, or max_admissions reached")         \
-    X(uint64_t, tracks_inconsistent, "candidate observations that disagreed with their track's previous one")       \
+    X(uint64_t, tracks_inconsistent,                                                                                \
+      "observations that disagreed with their track's previous one (candidates; first-sight landmarks at their "    \
+      "second sight)")                                                                                              \
     X(uint64_t, frames_reassociated, "frames whose tracked observations were all distrusted")                       \
     X(uint64_t, frames_repeated, "frames repeating the previous frame's pixels exactly (a stale image)")            \
     X(uint64_t, tracks_broken, "window landmarks whose observation contradicted them: mapped, id restarted")        \
