@@ -108,6 +108,21 @@ static void scenario(uint64_t noise_seed, uint32_t steps, double px, vl_sim_conf
     cfg->angular_velocity_noise = sc->angular_noise;
 }
 
+/* The adaptation tests' priors: 10x too large and 10x too small. */
+static const double prior_factors[2] = {10.0, 0.1};
+
+/* scenario() with the velocity noise priors (and the pixel one when pixel_too) factor x the truth. */
+static void scenario_off_by(uint64_t noise_seed, uint32_t steps, double px, double factor, int pixel_too,
+                            vl_sim_config_t *sc, vl_config_t *cfg)
+{
+    scenario(noise_seed, steps, px, sc, cfg);
+    cfg->linear_velocity_noise = sc->linear_noise * factor;
+    cfg->angular_velocity_noise = sc->angular_noise * factor;
+    if (pixel_too) {
+        cfg->pixel_noise = sc->pixel_noise * factor;
+    }
+}
+
 static void run(const vl_sim_config_t *sc, const vl_config_t *cfg_in, run_result_t *res)
 {
     memset(res, 0, sizeof(*res));
@@ -284,21 +299,17 @@ void test_adaptive_noise_moves_wrong_settings_toward_the_truth(void)
     vl_sim_config_t sc;
     vl_config_t cfg;
     vl_pose_t pose;
-    static const double factors[2] = {10.0, 0.1};
     double got[2][3];
     for (int f = 0; f < 2; ++f) {
-        scenario(21, 300, 1.0, &sc, &cfg);
-        cfg.linear_velocity_noise = sc.linear_noise * factors[f];
-        cfg.angular_velocity_noise = sc.angular_noise * factors[f];
-        cfg.pixel_noise = sc.pixel_noise * factors[f];
+        scenario_off_by(21, 300, 1.0, prior_factors[f], 1, &sc, &cfg);
         /* The rule's own reach with every row; the default work bound is asserted below. */
         cfg.max_update_work = 0.0;
         cfg.max_update_observations = 0;
         adapted_noise(&sc, &cfg, &pose);
         printf("configured x%.1f: adapted linear %.3f (true %.3f) m/s, angular %.4f (true %.4f) rad/s, "
                "pixel %.3f (true %.3f) px\n",
-               factors[f], pose.linear_velocity_noise, sc.linear_noise, pose.angular_velocity_noise, sc.angular_noise,
-               pose.pixel_noise, sc.pixel_noise);
+               prior_factors[f], pose.linear_velocity_noise, sc.linear_noise, pose.angular_velocity_noise,
+               sc.angular_noise, pose.pixel_noise, sc.pixel_noise);
         /* Each noise closes at least three quarters of the (log) distance to the truth,
          * from either side (linear 0.387 / 0.375, angular 0.0409, pixel 1.29 against 0.5,
          * 0.05, 1.0). Matched in the world frame the linear estimate ran to its lower bound
@@ -308,7 +319,7 @@ void test_adaptive_noise_moves_wrong_settings_toward_the_truth(void)
         got[f][1] = pose.angular_velocity_noise;
         got[f][2] = pose.pixel_noise;
         for (int i = 0; i < 3; ++i) {
-            TEST_ASSERT_TRUE(fabs(log(got[f][i] / truth[i])) < 0.25 * fabs(log(factors[f])));
+            TEST_ASSERT_TRUE(fabs(log(got[f][i] / truth[i])) < 0.25 * fabs(log(prior_factors[f])));
         }
     }
     /* The end point does not depend on the prior: from 10x too large and 10x too small
@@ -396,24 +407,21 @@ void test_sparse_frames_match_the_velocity_noise_on_two_views(void)
     vl_sim_config_t sc;
     vl_config_t cfg;
     vl_pose_t pose;
-    static const double factors[2] = {10.0, 0.1};
     double got[2][2];
     for (int f = 0; f < 2; ++f) {
-        scenario(41, 600, 0.3, &sc, &cfg);
+        scenario_off_by(41, 600, 0.3, prior_factors[f], 0, &sc, &cfg);
         sc.points_per_meter *= 0.06;
-        cfg.linear_velocity_noise = sc.linear_noise * factors[f];
-        cfg.angular_velocity_noise = sc.angular_noise * factors[f];
         adapted_noise(&sc, &cfg, &pose);
         const double obs_per_frame = (double)vl_get_counters(&est)->observations_received / 600.0;
         printf("sparse (%.1f observations per frame), configured x%.1f: adapted linear %.3f (true %.3f) m/s, "
                "angular %.4f (true %.4f) rad/s\n",
-               obs_per_frame, factors[f], pose.linear_velocity_noise, sc.linear_noise, pose.angular_velocity_noise,
-               sc.angular_noise);
+               obs_per_frame, prior_factors[f], pose.linear_velocity_noise, sc.linear_noise,
+               pose.angular_velocity_noise, sc.angular_noise);
         TEST_ASSERT_TRUE(obs_per_frame < 10.0);
         got[f][0] = pose.linear_velocity_noise / sc.linear_noise;
         got[f][1] = pose.angular_velocity_noise / sc.angular_noise;
         for (int i = 0; i < 2; ++i) {
-            TEST_ASSERT_TRUE(fabs(log(got[f][i])) < TWO_VIEW_CLOSES * fabs(log(factors[f])));
+            TEST_ASSERT_TRUE(fabs(log(got[f][i])) < TWO_VIEW_CLOSES * fabs(log(prior_factors[f])));
         }
     }
     for (int i = 0; i < 2; ++i) {

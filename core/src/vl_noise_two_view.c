@@ -84,27 +84,26 @@ static const vl_stereo_obs_t *previous_observation(const vl_estimator_t *e, int3
     return NULL;
 }
 
-/* Lower Cholesky factor of a symmetric 3x3 W (row-major); -1 when not positive definite. */
-static int cholesky3(const double W[9], double L[9])
+/* Lower Cholesky factor L of a symmetric n x n A (row-major; L's upper part zero); -1 when A is
+ * not positive definite. */
+static int cholesky(const double *A, int n, double *L)
 {
-    for (int j = 0; j < 3; ++j) {
-        double d = W[4 * j];
+    for (int j = 0; j < n; ++j) {
+        double d = A[(n + 1) * j];
         for (int k = 0; k < j; ++k) {
-            d -= L[3 * j + k] * L[3 * j + k];
+            d -= L[n * j + k] * L[n * j + k];
         }
         if (!(d > 0.0)) {
             return -1;
         }
-        L[4 * j] = sqrt(d);
-        for (int i = j + 1; i < 3; ++i) {
-            double s = W[3 * i + j];
+        L[(n + 1) * j] = sqrt(d);
+        for (int i = j + 1; i < n; ++i) {
+            double s = A[n * i + j];
             for (int k = 0; k < j; ++k) {
-                s -= L[3 * i + k] * L[3 * j + k];
+                s -= L[n * i + k] * L[n * j + k];
             }
-            L[3 * i + j] = s / L[4 * j];
-        }
-        for (int i = 0; i < j; ++i) {
-            L[3 * i + j] = 0.0;
+            L[n * i + j] = s / L[(n + 1) * j];
+            L[n * j + i] = 0.0;
         }
     }
     return 0;
@@ -123,23 +122,9 @@ static void forward3(const double L[9], double *x, int ncols)
 /* Inverse of a symmetric positive definite 6x6 A (row-major) by Cholesky; -1 when not. */
 static int inverse6(const double A[36], double Ainv[36])
 {
-    double L[36] = {0};
-    for (int j = 0; j < 6; ++j) {
-        double d = A[7 * j];
-        for (int k = 0; k < j; ++k) {
-            d -= L[6 * j + k] * L[6 * j + k];
-        }
-        if (!(d > 0.0)) {
-            return -1;
-        }
-        L[7 * j] = sqrt(d);
-        for (int i = j + 1; i < 6; ++i) {
-            double s = A[6 * i + j];
-            for (int k = 0; k < j; ++k) {
-                s -= L[6 * i + k] * L[6 * j + k];
-            }
-            L[6 * i + j] = s / L[7 * j];
-        }
+    double L[36];
+    if (cholesky(A, 6, L) != 0) {
+        return -1;
     }
     for (int c = 0; c < 6; ++c) {
         double y[6], x[6];
@@ -232,7 +217,7 @@ static int track_terms(const vl_estimator_t *e, const double Rc[9], const double
         S[i] += W[i];
     }
     t->chi2 = vl_mahalanobis3(S, r);
-    if (cholesky3(W, L) != 0) {
+    if (cholesky(W, 3, L) != 0) {
         return -1;
     }
     double Hr[21]; /* [H | r], whitened together */
