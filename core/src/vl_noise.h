@@ -47,8 +47,10 @@ void vl_noise_widen(vl_estimator_t *e);
 /**
  * The stereo rows' white pixel noise (e->stereo_row_var, per coordinate) from the
  * frame's v_left - v_right: a rectified pair's two rows agree whatever the pose,
- * so their difference is pixel noise alone. A median per frame, averaged over
- * VL_STEREO_ROW_MEMORY observations (vl_noise_two_view.c).
+ * so their difference is pixel noise alone. Each frame's samples capped at 3
+ * sigma of the estimate and averaged (the first frame's median starts it),
+ * weighted by the evidence over VL_STEREO_ROW_MEMORY observations
+ * (vl_noise_two_view.c).
  */
 void vl_noise_observe_stereo_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count);
 

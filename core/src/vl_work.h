@@ -39,7 +39,7 @@ void vl_work_ransac(vl_estimator_t *e, uint32_t n, uint32_t k, uint32_t hypothes
 /** The joint update with k observations on n states, then (adapted) the noise adaptation over the k_frame rows it reads. */
 void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint32_t k_frame);
 
-/** The stereo rows' white noise: a sample per observation and their median. */
+/** The stereo rows' white noise: a sample per observation and their capped mean (or median). */
 void vl_work_stereo_rows(vl_estimator_t *e, uint32_t count);
 
 /** The sparse frames' two-view velocity noise matching: the track lookup and the fit of pairs tracks. */
