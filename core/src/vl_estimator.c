@@ -412,6 +412,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     /* A sparse frame's velocity noise is matched on its tracks' two views before the update;
      * a repeated image, or one after it, shows one step of motion where the clock shows two. */
     e->velocity_matched = 0;
+    memset(e->work_moved, 0, count);
     if (e->cfg.adaptive_noise && e->cfg.mode == VL_MODE_SLAM) {
         vl_noise_observe_stereo_rows(e, frame, count);
         if (had_frame && !repeated && !e->prev_frame_repeated) {

@@ -154,6 +154,7 @@ typedef struct {
     double info[21]; /* H^T W^-1 H, upper triangle by rows */
     double b[6];     /* H^T W^-1 r */
     double rr;       /* r^T W^-1 r */
+    double Hr[21];   /* [H | r] whitened by W, 3 x 7 */
     double chi2;     /* r^T (W + H Q H^T)^-1 r, Q the motion error the filter expects */
 } vl_two_view_track_t;
 
@@ -235,6 +236,9 @@ static int track_terms(const vl_estimator_t *e, const double Rc[9], const double
         t->b[i] = Hr[i] * Hr[6] + Hr[7 + i] * Hr[13] + Hr[14 + i] * Hr[20];
     }
     t->rr = Hr[6] * Hr[6] + Hr[13] * Hr[13] + Hr[20] * Hr[20];
+    for (int i = 0; i < 21; ++i) {
+        t->Hr[i] = Hr[i];
+    }
     return 0;
 }
 
@@ -269,6 +273,95 @@ static void match_block(vl_estimator_t *e, int block, const double C[36], const 
     const double gain = VL_TWO_VIEW_GAIN * 3.0 * noise / expected;
     *var = vl_noise_clamp_var(*var * exp(gain * vl_noise_log_ratio_step(seen / expected, expected * expected / spread)),
                               configured_std);
+}
+
+/* The normal equations of the tracks t with skip[t] == 0, the upper triangle mirrored; their count. */
+static uint32_t sum_tracks(const vl_two_view_track_t *tracks, uint32_t n, const uint8_t *skip, double info[36],
+                           double b[6], double *rr)
+{
+    uint32_t used = 0;
+    for (int i = 0; i < 36; ++i) {
+        info[i] = 0.0;
+    }
+    for (int i = 0; i < 6; ++i) {
+        b[i] = 0.0;
+    }
+    *rr = 0.0;
+    for (uint32_t t = 0; t < n; ++t) {
+        if (skip[t]) {
+            continue;
+        }
+        for (int i = 0; i < 6; ++i) {
+            for (int j = i; j < 6; ++j) {
+                info[6 * i + j] += tracks[t].info[upper6(i, j)];
+            }
+            b[i] += tracks[t].b[i];
+        }
+        *rr += tracks[t].rr;
+        used++;
+    }
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < i; ++j) {
+            info[6 * i + j] = info[6 * j + i];
+        }
+    }
+    return used;
+}
+
+/*
+ * The tracks that moved against the others (a moving object, a re-associated id):
+ * each one's residual against the motion the other tracks fit, at its white noise
+ * plus that fit's uncertainty, beyond the gate. Judged without the expected motion
+ * error, so a velocity noise set too small does not make true motion look like a
+ * moving track. When half or more of the frame's tracks fail, none is flagged:
+ * the frame disagrees with itself (its fit residual is judged instead).
+ */
+static void flag_moved(vl_estimator_t *e, const vl_two_view_track_t *tracks, const uint32_t *obs, uint32_t n)
+{
+    if (n < VL_TWO_VIEW_MIN_PAIRS + 1u || e->cfg.gate_chi2 <= 0.0) {
+        return;
+    }
+    uint8_t skip[VL_NOISE_DENSE_FRAME] = {0}, moved[VL_NOISE_DENSE_FRAME] = {0};
+    uint32_t flagged = 0;
+    for (uint32_t t = 0; t < n; ++t) {
+        double info[36], b[6], rr, C[36], dx[6];
+        skip[t] = 1;
+        (void)sum_tracks(tracks, n, skip, info, b, &rr);
+        skip[t] = 0;
+        if (inverse6(info, C) != 0) {
+            continue;
+        }
+        vl_matmul(C, b, dx, 6, 6, 1);
+        const double *Hr = tracks[t].Hr;
+        double r[3], HC[18], S[9];
+        for (int i = 0; i < 3; ++i) {
+            r[i] = Hr[7 * i + 6];
+            for (int j = 0; j < 6; ++j) {
+                r[i] -= Hr[7 * i + j] * dx[j];
+                HC[6 * i + j] = 0.0;
+                for (int k = 0; k < 6; ++k) {
+                    HC[6 * i + j] += Hr[7 * i + k] * C[6 * k + j];
+                }
+            }
+        }
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) {
+                S[3 * i + j] = i == j ? 1.0 : 0.0;
+                for (int k = 0; k < 6; ++k) {
+                    S[3 * i + j] += HC[6 * i + k] * Hr[7 * j + k];
+                }
+            }
+        }
+        moved[t] = !(vl_mahalanobis3(S, r) <= e->cfg.gate_chi2);
+        flagged += moved[t];
+    }
+    if (2u * flagged < n) {
+        for (uint32_t t = 0; t < n; ++t) {
+            if (moved[t]) {
+                e->work_moved[obs[t]] = 1;
+            }
+        }
+    }
 }
 
 /* The 99 % quantile of chi-square with k >= 1 degrees of freedom (Wilson and Hilferty's cube:
@@ -308,6 +401,7 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
     vl_stereo_noise_var(e->stereo_row_var, nv);
     expected_motion_error(e, q);
     vl_two_view_track_t tracks[VL_NOISE_DENSE_FRAME];
+    uint32_t obs[VL_NOISE_DENSE_FRAME];
     uint32_t n = 0, contradicting = 0;
     for (uint32_t i = 0; i < count; ++i) {
         const vl_stereo_obs_t *now = &frame->obs[i];
@@ -321,34 +415,20 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
         }
         if (track_terms(e, Rc, tc, nv, q, prev, now, &tracks[n]) == 0) {
             contradicting += !(tracks[n].chi2 <= e->cfg.gate_chi2);
-            n++;
+            obs[n++] = i;
         }
     }
     vl_work_two_view(e, count, e->num_prev_obs, n);
-    /* A track that alone contradicts the expected motion moved itself (a moving object, a
-     * re-association): it is left out. When most do, the motion was off, and all count. */
+    flag_moved(e, tracks, obs, n);
+    /* A track that alone contradicts the expected motion is left out of the fit (a moving
+     * object, a re-association); when most do, the motion was off, and all count. */
     const int drop = 2u * contradicting < n && e->cfg.gate_chi2 > 0.0;
-    double info[36] = {0}, b[6] = {0}, rr = 0.0;
-    uint32_t used = 0;
+    uint8_t skip[VL_NOISE_DENSE_FRAME];
     for (uint32_t t = 0; t < n; ++t) {
-        if (drop && !(tracks[t].chi2 <= e->cfg.gate_chi2)) {
-            continue;
-        }
-        for (int i = 0; i < 6; ++i) {
-            for (int j = i; j < 6; ++j) {
-                info[6 * i + j] += tracks[t].info[upper6(i, j)];
-            }
-            b[i] += tracks[t].b[i];
-        }
-        rr += tracks[t].rr;
-        used++;
+        skip[t] = drop && !(tracks[t].chi2 <= e->cfg.gate_chi2);
     }
-    for (int i = 0; i < 6; ++i) {
-        for (int j = 0; j < i; ++j) {
-            info[6 * i + j] = info[6 * j + i];
-        }
-    }
-    double C[36], dx[6];
+    double info[36], b[6], rr, C[36], dx[6];
+    const uint32_t used = sum_tracks(tracks, n, skip, info, b, &rr);
     if (used < VL_TWO_VIEW_MIN_PAIRS || inverse6(info, C) != 0) {
         return 0;
     }

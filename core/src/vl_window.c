@@ -412,8 +412,8 @@ uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, u
                 e->counters.observations_behind_camera++;
                 continue;
             }
-            if (count < e->cfg.first_sight_below && s->observations == 2u && s->updates == 0u &&
-                !second_sight_consistent(e, (uint32_t)slot, o, frame_dt)) {
+            if (e->work_moved[i] || (count < e->cfg.first_sight_below && s->observations == 2u && s->updates == 0u &&
+                                     !second_sight_consistent(e, (uint32_t)slot, o, frame_dt))) {
                 e->counters.tracks_inconsistent++;
                 e->work_seen[slot] = VL_SEEN_BROKEN; /* to the map; restarts from this observation */
                 e->work_broken[e->num_broken++] = i;

@@ -366,6 +366,7 @@ class Filter:
         self.step_t = 0.0           # s: sum of tau since the last frame
         self.prev_repeated = False  # the previous frame repeated the one before it
         self.velocity_matched = False
+        self.moved = set()          # this frame's observations whose track contradicted its fellows' motion
         self.state_utime = None  # us; None until the first IMU sample
         self.last_imu_utime = None
         self.held_v = self.held_w = None
@@ -500,6 +501,7 @@ class Filter:
         self.predict_to(utime)
         # a sparse frame's velocity noise, matched on its tracks' two views before the update
         self.velocity_matched = False
+        self.moved = set()
         if self.cfg["adaptive_noise"] and self.cfg["mode"] == "slam":
             self.observe_stereo_rows(frame)
             if had_frame and not repeated and not self.prev_repeated:
@@ -639,8 +641,8 @@ class Filter:
                     continue
                 # a landmark a sparse frame admitted at first sight must agree with itself before
                 # any update uses it (a track on a moving object breaks here)
-                if (len(frame) < self.cfg["first_sight_below"] and s.observations == 2 and s.updates == 0
-                        and not self._second_sight_consistent(slot, o, frame_dt)):
+                if i in self.moved or (len(frame) < self.cfg["first_sight_below"] and s.observations == 2
+                                       and s.updates == 0 and not self._second_sight_consistent(slot, o, frame_dt)):
                     s.seen = SEEN_BROKEN
                     self.broken_obs.append(i)
                     continue
@@ -914,13 +916,34 @@ class Filter:
         self.var_rows = (1.0 - w) * self.var_rows + w * sample
         self.rows_evidence = held + n
 
+    def _moved_against_the_others(self, terms):
+        """The observations whose track's residual against the motion the other tracks fit (at its
+        white noise plus that fit's covariance) is beyond the gate; none when half or more are."""
+        n = len(terms)
+        if n < TWO_VIEW_MIN_PAIRS + 1 or self.cfg["gate_chi2"] <= 0.0:
+            return set()
+        moved = set()
+        for t in terms:
+            info = sum(u[0] for u in terms if u is not t)
+            b = sum(u[1] for u in terms if u is not t)
+            try:
+                np.linalg.cholesky(info)
+            except np.linalg.LinAlgError:
+                continue
+            C = np.linalg.inv(info)
+            Hw, rw = t[5], t[6]
+            if not mahalanobis3(np.eye(3) + Hw @ C @ Hw.T, rw - Hw @ (C @ b)) <= self.cfg["gate_chi2"]:
+                moved.add(t[4])
+        return moved if 2 * len(moved) < n else set()
+
     def adapt_velocity_two_view(self, frame):
         """A sparse frame's tracks in both views, r = y - h(predicted motion, previous triangulation)
         = H delta + e (delta the right perturbation of the predicted pose, e both sightings' pixel
         noise at the stereo rows' estimate): a weighted least-squares fit of delta and its
         covariance C; each block matched against C plus the expected motion error q (the velocity
         variance x sum tau^2, the offsets' x (sum tau)^2). Tracks that alone contradict q are left
-        out; a frame whose fit residual exceeds its 99 % chi-square quantile is not matched."""
+        out; those that contradict the others' fit are broken (self.moved); a frame whose fit
+        residual exceeds its 99 % chi-square quantile is not matched."""
         if len(frame) >= VELOCITY_DENSE_FRAME or not self.var_rows > 0.0 or not self.step_t2 > 0.0:
             return False
         nv = stereo_noise(self.var_rows)
@@ -928,7 +951,7 @@ class Filter:
         if self.cfg["estimate_input_offsets"]:
             q = q + np.diag(self.P)[6:12] * self.step_t * self.step_t
         cal, terms = self.cal, []
-        for o in frame:
+        for i, o in enumerate(frame):
             if not _valid(o) or not o[1] - o[3] >= self.cfg["min_disparity"]:
                 continue
             prev = next((x for x in self.prev_frame if x[0] == o[0]), None)
@@ -952,7 +975,8 @@ class Filter:
             except np.linalg.LinAlgError:
                 continue
             Hw, rw = np.linalg.solve(L, H), np.linalg.solve(L, r)
-            terms.append((Hw.T @ Hw, Hw.T @ rw, float(rw @ rw), chi2))
+            terms.append((Hw.T @ Hw, Hw.T @ rw, float(rw @ rw), chi2, i, Hw, rw))
+        self.moved = self._moved_against_the_others(terms)
         contradicting = sum(not t[3] <= self.cfg["gate_chi2"] for t in terms)
         drop = 2 * contradicting < len(terms) and self.cfg["gate_chi2"] > 0.0
         kept = [t for t in terms if not (drop and not t[3] <= self.cfg["gate_chi2"])]

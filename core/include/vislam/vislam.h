@@ -245,8 +245,8 @@ typedef struct {
     X(uint64_t, landmarks_initialized, "admitted to the window")                                                    \
     X(uint64_t, landmarks_deferred, "admissions postponed: the window was full, or max_admissions reached")         \
     X(uint64_t, tracks_inconsistent,                                                                                \
-      "observations that disagreed with their track's previous one (candidates; first-sight landmarks at their "    \
-      "second sight)")                                                                                              \
+      "observations that disagreed with their track's previous one (candidates; on sparse frames, window tracks "   \
+      "against the motion the others agree on, and first-sight landmarks at their second sight)")                   \
     X(uint64_t, frames_reassociated, "frames whose tracked observations were all distrusted")                       \
     X(uint64_t, frames_repeated, "frames repeating the previous frame's pixels exactly (a stale image)")            \
     X(uint64_t, tracks_broken, "window landmarks whose observation contradicted them: mapped, id restarted")        \
@@ -443,6 +443,8 @@ typedef struct {
     uint8_t work_support[VL_MAX_LANDMARKS];
     uint32_t work_broken[VL_MAX_LANDMARKS];
     uint32_t num_broken;
+    uint8_t work_moved[VL_MAX_FRAME_FEATURES]; /**< the frame's observations whose track contradicted the
+                                                    motion its fellows agree on (two-view matching) */
 } vl_estimator_t;
 
 /** Fills the tuned default configuration (measured best on 0027; see README). */
