@@ -26,9 +26,11 @@
 /* Moving one landmark by a correction: two 3x3 products and a sum. */
 #define VL_WORK_LANDMARK_CORRECTION 39u
 /* One track's two views: triangulation, projection, the 3x3 weight, whitening [H r] and the
- * 6x6 normal equations; then the 6x6 inverse and the two blocks' matching. */
+ * 6x6 normal equations. A fit: summing the tracks' normal equations (54 a track), the 6x6
+ * inverse and solve, and a track's residual against it (or the two blocks' matching). */
 #define VL_WORK_TWO_VIEW_PAIR 700u
 #define VL_WORK_TWO_VIEW_FIT 900u
+#define VL_WORK_TWO_VIEW_SUM 54u
 
 static void add(vl_estimator_t *e, uint64_t *stage, uint64_t flops)
 {
@@ -142,9 +144,10 @@ void vl_work_stereo_rows(vl_estimator_t *e, uint32_t count)
 
 void vl_work_two_view(vl_estimator_t *e, uint32_t count, uint32_t previous, uint32_t pairs)
 {
-    /* The id lookup compares each observation with the previous frame's: one operation each. */
-    add(e, &e->work.update,
-        (uint64_t)count * previous + (uint64_t)pairs * VL_WORK_TWO_VIEW_PAIR + VL_WORK_TWO_VIEW_FIT);
+    /* The id lookup compares each observation with the previous frame's: one operation each. Then
+     * the tracks, one fit without each (leave-one-out) and the fit of all. */
+    const uint64_t fit = VL_WORK_TWO_VIEW_FIT + (uint64_t)pairs * VL_WORK_TWO_VIEW_SUM;
+    add(e, &e->work.update, (uint64_t)count * previous + (uint64_t)pairs * (VL_WORK_TWO_VIEW_PAIR + fit) + fit);
 }
 
 void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued)
