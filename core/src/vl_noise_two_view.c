@@ -41,7 +41,7 @@ void vl_noise_observe_stereo_rows(vl_estimator_t *e, const vl_stereo_frame_t *fr
     vl_work_stereo_rows(e, count);
     for (uint32_t i = 0; i < count; ++i) {
         const vl_stereo_obs_t *o = &frame->obs[i];
-        if (vl_guard_observation_valid(o)) {
+        if (vl_guard_observation_valid(o) && vl_guard_observation_plausible(e, o)) {
             const double d = o->v_left - o->v_right;
             samples[n++] = 0.5 * d * d; /* v_left - v_right has twice one coordinate's variance */
         }
@@ -71,6 +71,14 @@ void vl_noise_observe_stereo_rows(vl_estimator_t *e, const vl_stereo_frame_t *fr
     const double w = (double)n / (held + (double)n);
     e->stereo_row_var = (1.0 - w) * e->stereo_row_var + w * sample;
     e->stereo_row_evidence = held + (double)n;
+}
+
+/* An observation the window would read (a valid id, finite and plausible pixels) with the
+ * disparity a landmark needs. */
+static int usable(const vl_estimator_t *e, const vl_stereo_obs_t *o)
+{
+    return vl_guard_observation_valid(o) && vl_guard_observation_plausible(e, o) &&
+           o->u_left - o->u_right >= e->cfg.min_disparity;
 }
 
 /* The track's observation in the previous frame, or NULL. */
@@ -405,12 +413,11 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
     uint32_t n = 0, contradicting = 0;
     for (uint32_t i = 0; i < count; ++i) {
         const vl_stereo_obs_t *now = &frame->obs[i];
-        if (!vl_guard_observation_valid(now) || !(now->u_left - now->u_right >= e->cfg.min_disparity)) {
+        if (!usable(e, now)) {
             continue;
         }
         const vl_stereo_obs_t *prev = previous_observation(e, now->id);
-        if (prev == NULL || !vl_guard_observation_valid(prev) ||
-            !(prev->u_left - prev->u_right >= e->cfg.min_disparity)) {
+        if (prev == NULL || !usable(e, prev)) {
             continue;
         }
         if (track_terms(e, Rc, tc, nv, q, prev, now, &tracks[n]) == 0) {

@@ -901,7 +901,7 @@ class Filter:
         """(v_left - v_right)^2 / 2 of each valid observation: pixel noise alone. The first frame of
         3 or more sets the estimate by its median; later ones by their mean, each sample capped at
         STEREO_ROW_CAP estimates; evidence-weighted over STEREO_ROW_MEMORY observations."""
-        samples = np.array([0.5 * (o[2] - o[4]) ** 2 for o in frame if _valid(o)])
+        samples = np.array([0.5 * (o[2] - o[4]) ** 2 for o in frame if _valid(o) and self._plausible(o)])
         n = len(samples)
         if n < TWO_VIEW_MIN_PAIRS:
             return
@@ -915,6 +915,10 @@ class Filter:
         w = n / (held + n)
         self.var_rows = (1.0 - w) * self.var_rows + w * sample
         self.rows_evidence = held + n
+
+    def _usable(self, o):
+        """Valid, plausible, and with the disparity a landmark needs."""
+        return _valid(o) and self._plausible(o) and o[1] - o[3] >= self.cfg["min_disparity"]
 
     def _moved_against_the_others(self, terms):
         """The observations whose track's residual against the motion the other tracks fit (at its
@@ -952,10 +956,10 @@ class Filter:
             q = q + np.diag(self.P)[6:12] * self.step_t * self.step_t
         cal, terms = self.cal, []
         for i, o in enumerate(frame):
-            if not _valid(o) or not o[1] - o[3] >= self.cfg["min_disparity"]:
+            if not self._usable(o):
                 continue
             prev = next((x for x in self.prev_frame if x[0] == o[0]), None)
-            if prev is None or not _valid(prev) or not prev[1] - prev[3] >= self.cfg["min_disparity"]:
+            if prev is None or not self._usable(prev):
                 continue
             c, dc_dy = stereo_triangulate(cal, compress(prev))
             pw = self.frame_R @ (cal.Rc.T @ (c - cal.tc)) + self.frame_p
