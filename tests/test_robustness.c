@@ -403,6 +403,51 @@ void test_pixels_outside_the_image_and_absurd_disparity_are_refused(void)
     TEST_ASSERT_EQUAL_UINT64(outside, vl_get_counters(&est)->observations_implausible);
 }
 
+/*
+ * On a sparse frame the two-view velocity noise matching reads every track. A
+ * track whose pixels jump 40 px and one whose stereo rows disagree by 30 px
+ * neither poison the noise (the stereo rows' estimate moves by a capped share,
+ * the velocity noise stays finite and within its bounds) nor stay: both break.
+ */
+void test_a_sparse_frames_bad_tracks_neither_poison_the_noise_nor_stay(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    static vl_stereo_frame_t f;
+    double rows_before = 0.0;
+    uint64_t broken_before = 0;
+    for (int k = 0; k < 12; ++k) {
+        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        make_frame(&cfg, &f, T0 + k * STEP);
+        f.count = 8; /* sparse: under VL_NOISE_DENSE_FRAME */
+        for (uint32_t i = 0; i < f.count; ++i) {
+            f.obs[i].v_right += ((i + (uint32_t)k) % 2u) ? 0.3 : -0.3; /* the rows' white noise */
+        }
+        if (k == 11) {
+            f.obs[2].u_left += 40.0;
+            f.obs[2].u_right += 40.0;
+            f.obs[5].v_right += 30.0;
+        } else if (k == 10) {
+            rows_before = est.stereo_row_var;
+            broken_before = vl_get_counters(&est)->tracks_inconsistent;
+        }
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
+    }
+    TEST_ASSERT_TRUE(rows_before > 0.0);
+    TEST_ASSERT_TRUE(est.stereo_row_var < 1.5 * rows_before);
+    TEST_ASSERT_TRUE(vl_get_counters(&est)->tracks_inconsistent >= broken_before + 2u);
+    vl_pose_t p;
+    get_pose(&est, &p);
+    TEST_ASSERT_TRUE(isfinite(p.linear_velocity_noise) && isfinite(p.angular_velocity_noise));
+    TEST_ASSERT_TRUE(p.linear_velocity_noise <= cfg.linear_velocity_noise * 100.0);
+    TEST_ASSERT_TRUE(p.angular_velocity_noise <= cfg.angular_velocity_noise * 100.0);
+    for (int i = 0; i < 3; ++i) {
+        TEST_ASSERT_TRUE(isfinite(p.position[i]));
+    }
+}
+
 /* ------------------------------------------------------------ divergence */
 
 void test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_calibration(void)
@@ -669,6 +714,7 @@ int main(void)
     RUN_TEST(test_stray_samples_and_a_stuck_clock_never_switch_timelines);
     RUN_TEST(test_absurd_imu_samples_are_refused_and_counted);
     RUN_TEST(test_pixels_outside_the_image_and_absurd_disparity_are_refused);
+    RUN_TEST(test_a_sparse_frames_bad_tracks_neither_poison_the_noise_nor_stay);
     RUN_TEST(test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_calibration);
     RUN_TEST(test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged);
     RUN_TEST(test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed_out);

@@ -435,8 +435,8 @@ void test_sparse_frames_match_the_velocity_noise_on_two_views(void)
  * checked against the motion the frame's other tracks agree on: a track on an
  * object that moves 3 m/s breaks. On a sparse drive where a tenth of the points
  * move (twice the realistic simulator's share), far more tracks break than on the
- * same drive standing still (210 against 41), and the drive with clean velocities
- * does no harm (3.47 m against 14.34 m for dead reckoning).
+ * same drive standing still (189 against 41), and the drive with clean velocities
+ * does no harm (3.44 m against 14.34 m for dead reckoning).
  */
 void test_second_sight_breaks_tracks_on_moving_objects(void)
 {
@@ -517,7 +517,7 @@ void test_realistic_sparse_drives_with_noisy_velocities_do_no_harm(void)
  * no two that agree, and a single seed swings by metres with any change of which
  * observations are used (or on another CPU's last digits): seed 3 does harm (43.9
  * against 39.0 m). So: no more than one seed of the eight does harm, and the eight
- * together have less error than dead reckoning (95.1 against 306.7 m).
+ * together have less error than dead reckoning (92.9 against 306.7 m).
  */
 void test_realistic_sparsest_clean_drive_does_no_harm(void)
 {

@@ -319,24 +319,32 @@ static uint32_t sum_tracks(const vl_two_view_track_t *tracks, uint32_t n, const 
 /*
  * The tracks that moved against the others (a moving object, a re-associated id):
  * each one's residual against the motion the other tracks fit, at its white noise
- * plus that fit's uncertainty, beyond the gate. Judged without the expected motion
- * error, so a velocity noise set too small does not make true motion look like a
- * moving track. When half or more of the frame's tracks fail, none is flagged:
- * the frame disagrees with itself (its fit residual is judged instead).
+ * plus that fit's uncertainty, beyond the gate. The others are those the fit keeps
+ * (left_out: the ones that alone contradict the expected motion, so that two
+ * gross outliers do not spoil each other's reference). A track is judged against
+ * the others' motion, not against the expected one, so a velocity noise set too
+ * small does not make true motion look like a moving track. When half or more of
+ * the frame's tracks fail, none is flagged: the frame disagrees with itself (its
+ * fit residual is judged instead).
  */
-static void flag_moved(vl_estimator_t *e, const vl_two_view_track_t *tracks, const uint32_t *obs, uint32_t n)
+static void flag_moved(vl_estimator_t *e, const vl_two_view_track_t *tracks, const uint32_t *obs, uint32_t n,
+                       const uint8_t *left_out)
 {
     if (n < VL_TWO_VIEW_MIN_PAIRS + 1u || e->cfg.gate_chi2 <= 0.0) {
         return;
     }
-    uint8_t skip[VL_NOISE_DENSE_FRAME] = {0}, moved[VL_NOISE_DENSE_FRAME] = {0};
+    uint8_t skip[VL_NOISE_DENSE_FRAME], moved[VL_NOISE_DENSE_FRAME] = {0};
     uint32_t flagged = 0;
     for (uint32_t t = 0; t < n; ++t) {
+        skip[t] = left_out[t];
+    }
+    for (uint32_t t = 0; t < n; ++t) {
         double info[36], b[6], rr, C[36], dx[6];
+        const uint8_t own = skip[t];
         skip[t] = 1;
-        (void)sum_tracks(tracks, n, skip, info, b, &rr);
-        skip[t] = 0;
-        if (inverse6(info, C) != 0) {
+        const uint32_t others = sum_tracks(tracks, n, skip, info, b, &rr);
+        skip[t] = own;
+        if (others < VL_TWO_VIEW_MIN_PAIRS || inverse6(info, C) != 0) {
             continue;
         }
         vl_matmul(C, b, dx, 6, 6, 1);
@@ -426,7 +434,6 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
         }
     }
     vl_work_two_view(e, count, e->num_prev_obs, n);
-    flag_moved(e, tracks, obs, n);
     /* A track that alone contradicts the expected motion is left out of the fit (a moving
      * object, a re-association); when most do, the motion was off, and all count. */
     const int drop = 2u * contradicting < n && e->cfg.gate_chi2 > 0.0;
@@ -434,6 +441,7 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
     for (uint32_t t = 0; t < n; ++t) {
         skip[t] = drop && !(tracks[t].chi2 <= e->cfg.gate_chi2);
     }
+    flag_moved(e, tracks, obs, n, skip);
     double info[36], b[6], rr, C[36], dx[6];
     const uint32_t used = sum_tracks(tracks, n, skip, info, b, &rr);
     if (used < VL_TWO_VIEW_MIN_PAIRS || inverse6(info, C) != 0) {

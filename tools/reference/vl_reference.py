@@ -920,16 +920,19 @@ class Filter:
         """Valid, plausible, and with the disparity a landmark needs."""
         return _valid(o) and self._plausible(o) and o[1] - o[3] >= self.cfg["min_disparity"]
 
-    def _moved_against_the_others(self, terms):
-        """The observations whose track's residual against the motion the other tracks fit (at its
-        white noise plus that fit's covariance) is beyond the gate; none when half or more are."""
+    def _moved_against_the_others(self, terms, kept):
+        """The observations whose track's residual against the motion the other kept tracks fit (at
+        its white noise plus that fit's covariance) is beyond the gate; none when half or more are."""
         n = len(terms)
         if n < TWO_VIEW_MIN_PAIRS + 1 or self.cfg["gate_chi2"] <= 0.0:
             return set()
         moved = set()
         for t in terms:
-            info = sum(u[0] for u in terms if u is not t)
-            b = sum(u[1] for u in terms if u is not t)
+            others = [u for u in kept if u is not t]
+            if len(others) < TWO_VIEW_MIN_PAIRS:
+                continue
+            info = sum(u[0] for u in others)
+            b = sum(u[1] for u in others)
             try:
                 np.linalg.cholesky(info)
             except np.linalg.LinAlgError:
@@ -980,10 +983,10 @@ class Filter:
                 continue
             Hw, rw = np.linalg.solve(L, H), np.linalg.solve(L, r)
             terms.append((Hw.T @ Hw, Hw.T @ rw, float(rw @ rw), chi2, i, Hw, rw))
-        self.moved = self._moved_against_the_others(terms)
         contradicting = sum(not t[3] <= self.cfg["gate_chi2"] for t in terms)
         drop = 2 * contradicting < len(terms) and self.cfg["gate_chi2"] > 0.0
         kept = [t for t in terms if not (drop and not t[3] <= self.cfg["gate_chi2"])]
+        self.moved = self._moved_against_the_others(terms, kept)
         if len(kept) < TWO_VIEW_MIN_PAIRS:
             return False
         info = sum(t[0] for t in kept)
