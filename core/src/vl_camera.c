@@ -57,7 +57,8 @@ int vl_camera_project_world(const vl_estimator_t *e, const double pw[3], double 
     return 0;
 }
 
-void vl_camera_triangulate_world(const vl_estimator_t *e, const double y[3], double pw[3], double dpw_dy[9])
+void vl_camera_triangulate_at(const vl_estimator_t *e, const double R[9], const double p[3], const double y[3],
+                              double pw[3], double dpw_dy[9])
 {
     const vl_calibration_t *cal = &e->cfg.calibration;
     double Rc[9], tc[3], c[3], dc_dy[9], d[3], b[3], Rb[3], RRc[9];
@@ -67,12 +68,17 @@ void vl_camera_triangulate_world(const vl_estimator_t *e, const double y[3], dou
         d[i] = c[i] - tc[i];
     }
     vl_matmul_at(Rc, d, b, 3, 3, 1); /* b = Rc^T (c - tc), the point in the IMU frame */
-    vl_matmul(e->R, b, Rb, 3, 3, 1);
+    vl_matmul(R, b, Rb, 3, 3, 1);
     for (int i = 0; i < 3; ++i) {
-        pw[i] = Rb[i] + e->p[i];
+        pw[i] = Rb[i] + p[i];
     }
-    vl_matmul_bt(e->R, Rc, RRc, 3, 3, 3); /* R Rc^T */
+    vl_matmul_bt(R, Rc, RRc, 3, 3, 3); /* R Rc^T */
     vl_matmul(RRc, dc_dy, dpw_dy, 3, 3, 3);
+}
+
+void vl_camera_triangulate_world(const vl_estimator_t *e, const double y[3], double pw[3], double dpw_dy[9])
+{
+    vl_camera_triangulate_at(e, e->R, e->p, y, pw, dpw_dy);
 }
 
 double vl_mahalanobis3(const double S[9], const double r[3])

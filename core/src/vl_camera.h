@@ -30,10 +30,14 @@ int vl_camera_project_world(const vl_estimator_t *e, const double pw[3], double 
                             double dy_dpw[9]);
 
 /**
- * Triangulates a compressed observation y (disparity > 0) at the current pose:
+ * Triangulates a compressed observation y (disparity > 0) at the pose (R, p):
  * the world point pw = R b + p with b the point in the IMU frame, and
  * d pw / d y = R Rc^T dc/dy (3x3 row-major).
  */
+void vl_camera_triangulate_at(const vl_estimator_t *e, const double R[9], const double p[3], const double y[3],
+                              double pw[3], double dpw_dy[9]);
+
+/** vl_camera_triangulate_at the current pose. */
 void vl_camera_triangulate_world(const vl_estimator_t *e, const double y[3], double pw[3], double dpw_dy[9]);
 
 /** Squared Mahalanobis length r^T S^-1 r of a 3-vector; a non-SPD S gives infinity. */

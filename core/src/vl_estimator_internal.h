@@ -89,6 +89,14 @@ static inline const double *vl_landmark_point(const vl_estimator_t *e, uint32_t 
     return &e->landmark_state[3 * slot];
 }
 
+/** The frame's observation obs contradicts the landmark in slot: the landmark goes to the map
+ * when the window retires it, and obs restarts its track (vl_window_admit). */
+static inline void vl_track_break(vl_estimator_t *e, uint32_t slot, uint32_t obs)
+{
+    e->work_seen[slot] = VL_SEEN_BROKEN;
+    e->work_broken[e->num_broken++] = obs;
+}
+
 /** Hands a fixed message to the injected logger, if any. */
 static inline void vl_log_msg(const vl_estimator_t *e, vl_log_level_t level, int64_t utime, const char *msg)
 {

@@ -28,6 +28,8 @@
 /* Largest stereo-row sample, in variances of the estimate: 3 sigma (a Gaussian exceeds it 0.3 % of
  * the time, which lowers the mean by under 1 %). */
 #define VL_STEREO_ROW_CAP 9.0
+/* Observations from which a frame's stereo rows count (a median of fewer is an outlier's own). */
+#define VL_STEREO_ROW_MIN_SAMPLES 3u
 /* Tracks in both views from which a frame's motion error is fitted (6 unknowns, 3 rows each). */
 #define VL_TWO_VIEW_MIN_PAIRS 3u
 /* Step of the velocity noise in log-variance per frame, weighted by the noise's share of the
@@ -46,7 +48,7 @@ void vl_noise_observe_stereo_rows(vl_estimator_t *e, const vl_stereo_frame_t *fr
             samples[n++] = 0.5 * d * d; /* v_left - v_right has twice one coordinate's variance */
         }
     }
-    if (n < VL_TWO_VIEW_MIN_PAIRS) {
+    if (n < VL_STEREO_ROW_MIN_SAMPLES) {
         return;
     }
     double sample;
@@ -179,25 +181,13 @@ static int upper6(int i, int j)
  * its triangulation, both at the stereo rows' white noise (nv). q is the
  * diagonal of the motion error's expected covariance. 0 when the track gave terms.
  */
-static int track_terms(const vl_estimator_t *e, const double Rc[9], const double tc[3], const double nv[3],
-                       const double q[6], const vl_stereo_obs_t *prev, const vl_stereo_obs_t *now,
-                       vl_two_view_track_t *t)
+static int track_terms(const vl_estimator_t *e, const double nv[3], const double q[6], const vl_stereo_obs_t *prev,
+                       const vl_stereo_obs_t *now, vl_two_view_track_t *t)
 {
-    const vl_calibration_t *cal = &e->cfg.calibration;
-    double y0[3], y1[3], c[3], dc_dy[9], d[3], imu[3], pw[3], RRc[9], dpw_dy[9];
+    double y0[3], y1[3], pw[3], dpw_dy[9];
     vl_stereo_compress(prev, y0);
     vl_stereo_compress(now, y1);
-    vl_stereo_triangulate(cal, y0, c, dc_dy);
-    for (int i = 0; i < 3; ++i) {
-        d[i] = c[i] - tc[i];
-    }
-    vl_matmul_at(Rc, d, imu, 3, 3, 1); /* the point in the previous IMU frame */
-    vl_matmul(e->frame_R, imu, pw, 3, 3, 1);
-    for (int i = 0; i < 3; ++i) {
-        pw[i] += e->frame_p[i];
-    }
-    vl_matmul_bt(e->frame_R, Rc, RRc, 3, 3, 3);
-    vl_matmul(RRc, dc_dy, dpw_dy, 3, 3, 3);
+    vl_camera_triangulate_at(e, e->frame_R, e->frame_p, y0, pw, dpw_dy); /* at the previous frame's pose */
 
     double y_pred[3], H[18], dy_dpw[9];
     if (vl_camera_project_world(e, pw, y_pred, H, dy_dpw) != 0) {
@@ -412,8 +402,7 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
     if (count >= VL_NOISE_DENSE_FRAME || !(e->stereo_row_var > 0.0) || !(e->step_noise_time2 > 0.0)) {
         return 0;
     }
-    double Rc[9], tc[3], nv[3], q[6];
-    vl_camera_extrinsics(&e->cfg.calibration, Rc, tc);
+    double nv[3], q[6];
     vl_stereo_noise_var(e->stereo_row_var, nv);
     expected_motion_error(e, q);
     vl_two_view_track_t tracks[VL_NOISE_DENSE_FRAME];
@@ -428,7 +417,7 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
         if (prev == NULL || !usable(e, prev)) {
             continue;
         }
-        if (track_terms(e, Rc, tc, nv, q, prev, now, &tracks[n]) == 0) {
+        if (track_terms(e, nv, q, prev, now, &tracks[n]) == 0) {
             contradicting += !(tracks[n].chi2 <= e->cfg.gate_chi2);
             obs[n++] = i;
         }

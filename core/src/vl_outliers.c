@@ -69,8 +69,7 @@ int vl_outliers_reassociated(const vl_estimator_t *e, uint32_t k, uint32_t contr
 void vl_outliers_break_all(vl_estimator_t *e, uint32_t k)
 {
     for (uint32_t i = 0; i < k; ++i) {
-        e->work_seen[e->work_slot[i]] = VL_SEEN_BROKEN;
-        e->work_broken[e->num_broken++] = e->work_frame_obs[i];
+        vl_track_break(e, e->work_slot[i], e->work_frame_obs[i]);
     }
 }
 
@@ -139,8 +138,7 @@ uint32_t vl_outliers_rescue(vl_estimator_t *e, const vl_stereo_frame_t *frame, v
             e->work_slot[m] = slot;
             m++;
         } else {
-            e->work_seen[slot] = VL_SEEN_BROKEN;
-            e->work_broken[e->num_broken++] = e->work_frame_obs[i];
+            vl_track_break(e, slot, e->work_frame_obs[i]);
         }
     }
     return m;

@@ -337,7 +337,7 @@ static int second_sight_consistent(const vl_estimator_t *e, uint32_t slot, const
         }
     }
     vl_matmul_bt(JN, J, S, 3, 3, 3);
-    const double *l = &e->landmark_state[3 * slot];
+    const double *l = vl_landmark_point(e, slot);
     for (int i = 0; i < 3; ++i) {
         d[i] = pw[i] - l[i];
         lever2 += (pw[i] - e->p[i]) * (pw[i] - e->p[i]);
@@ -415,8 +415,7 @@ uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, u
             if (e->work_moved[i] || (count < e->cfg.first_sight_below && s->observations == 2u && s->updates == 0u &&
                                      !second_sight_consistent(e, (uint32_t)slot, o, frame_dt))) {
                 e->counters.tracks_inconsistent++;
-                e->work_seen[slot] = VL_SEEN_BROKEN; /* to the map; restarts from this observation */
-                e->work_broken[e->num_broken++] = i;
+                vl_track_break(e, (uint32_t)slot, i);
                 continue;
             }
             e->work_frame_obs[k] = i;

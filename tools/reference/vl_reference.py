@@ -457,11 +457,14 @@ class Filter:
         c = self.cal.Rc @ b + self.cal.tc
         return (b, c) if c[2] > MIN_CAMERA_DEPTH else (None, None)
 
-    def triangulate_world(self, y):
-        """l = R b + p with b = Rc^T (c - tc) the triangulated point in the IMU frame; dl/dy."""
+    def triangulate_world(self, y, R=None, p=None):
+        """l = R b + p with b = Rc^T (c - tc) the triangulated point in the IMU frame; dl/dy. At the
+        current pose unless (R, p) is given."""
+        R = self.R if R is None else R
+        p = self.p if p is None else p
         c, dc_dy = stereo_triangulate(self.cal, y)
         b = self.cal.Rc.T @ (c - self.cal.tc)
-        return self.R @ b + self.p, self.R @ self.cal.Rc.T @ dc_dy
+        return R @ b + p, R @ self.cal.Rc.T @ dc_dy
 
     def make_row(self, slot, frame, i):
         """The observation's rows. With b = R^T (l - p), to first order b = b_hat + R^T (rho_i - rho):
@@ -624,7 +627,7 @@ class Filter:
         slot_of = {s.id: k for k, s in enumerate(self.slots)}
         for i, o in enumerate(frame):
             oid = int(o[0])
-            if oid < 0 or not np.all(np.isfinite(o[1:])) or not self._plausible(o):
+            if not _valid(o) or not self._plausible(o):
                 continue
             disparity = o[1] - o[3]
             slot = slot_of.get(oid)
@@ -964,9 +967,7 @@ class Filter:
             prev = next((x for x in self.prev_frame if x[0] == o[0]), None)
             if prev is None or not self._usable(prev):
                 continue
-            c, dc_dy = stereo_triangulate(cal, compress(prev))
-            pw = self.frame_R @ (cal.Rc.T @ (c - cal.tc)) + self.frame_p
-            dpw_dy = self.frame_R @ cal.Rc.T @ dc_dy
+            pw, dpw_dy = self.triangulate_world(compress(prev), self.frame_R, self.frame_p)
             b, cc = self.camera_point(pw)
             if b is None:
                 continue
