@@ -515,9 +515,11 @@ void test_realistic_sparse_drives_with_noisy_velocities_do_no_harm(void)
  * realistic conditions capped at 5) and clean velocities, whose only error is the
  * simulator's constant angular offset. With so few observations a frame often has
  * no two that agree, and a single seed swings by metres with any change of which
- * observations are used (or on another CPU's last digits): seed 3 does harm (43.9
- * against 39.0 m). So: no more than one seed of the eight does harm, and the eight
- * together have less error than dead reckoning (92.9 against 306.7 m).
+ * observations are used (or on another CPU's last digits). Seed 3 did harm (43.9
+ * against 39.0 m) until a track that alone contradicts the expected motion in two
+ * frames in a row was broken as a moving one; now none does (seed 3 29.3 m, the
+ * closest), and the eight together have a quarter of dead reckoning's error (73.8
+ * against 306.7 m; 92.9 before).
  */
 void test_realistic_sparsest_clean_drive_does_no_harm(void)
 {
@@ -531,8 +533,8 @@ void test_realistic_sparsest_clean_drive_does_no_harm(void)
         slam_sum += slam.rms_position_error;
         dr_sum += dr.rms_position_error;
     }
-    TEST_ASSERT_TRUE(harmed <= 1u);
-    TEST_ASSERT_TRUE(slam_sum < dr_sum);
+    TEST_ASSERT_EQUAL_UINT32(0u, harmed);
+    TEST_ASSERT_TRUE(slam_sum < 0.5 * dr_sum);
 }
 
 int main(void)

@@ -413,10 +413,12 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
      * a repeated image, or one after it, shows one step of motion where the clock shows two. */
     e->velocity_matched = 0;
     memset(e->work_moved, 0, count);
+    uint8_t contradicted[VL_MAX_FRAME_FEATURES];
+    memset(contradicted, 0, count);
     if (e->cfg.adaptive_noise && e->cfg.mode == VL_MODE_SLAM) {
         vl_noise_observe_stereo_rows(e, frame, count);
         if (had_frame && !repeated && !e->prev_frame_repeated) {
-            e->velocity_matched = vl_noise_adapt_velocity_two_view(e, frame, count);
+            e->velocity_matched = vl_noise_adapt_velocity_two_view(e, frame, count, contradicted);
         }
     }
     e->step_noise_time2 = 0.0;
@@ -424,6 +426,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     e->prev_frame_repeated = repeated;
     e->num_prev_obs = count;
     memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
+    memcpy(e->prev_contradicted, contradicted, count);
     const double frame_dt = e->have_frame ? (double)vl_utime_diff(frame->utime, e->last_frame_utime) * 1e-6 : 0.0;
     e->last_frame_utime = frame->utime;
     e->have_frame = 1;

@@ -59,11 +59,14 @@ void vl_noise_observe_stereo_rows(vl_estimator_t *e, const vl_stereo_frame_t *fr
  * observations) from its tracks' two views, the previous frame's (e->prev_obs,
  * at the pose e->frame_R, e->frame_p) and this one's at the predicted pose,
  * before the update. Returns 1 when it matched (vl_noise_adapt_velocity then
- * leaves the frame alone), 0 when the frame is dense or gave too little. Flags
- * in e->work_moved (zeroed by the caller for the frame's count) the
- * observations whose track alone contradicted the expected motion.
+ * leaves the frame alone), 0 when the frame is dense or gave too little. Sets
+ * contradicted[i] (zeroed by the caller for the frame's count) for the
+ * observations whose track alone contradicted the expected motion, and flags in
+ * e->work_moved (zeroed likewise) those whose track moved against the others or
+ * did so in the previous frame too (e->prev_contradicted).
  */
-int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count);
+int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count,
+                                     uint8_t *contradicted);
 
 /* Shared by the adaptation rules. */
 

@@ -83,15 +83,15 @@ static int usable(const vl_estimator_t *e, const vl_stereo_obs_t *o)
            o->u_left - o->u_right >= e->cfg.min_disparity;
 }
 
-/* The track's observation in the previous frame, or NULL. */
-static const vl_stereo_obs_t *previous_observation(const vl_estimator_t *e, int32_t id)
+/* The index of the track's observation in the previous frame, or -1. */
+static int previous_observation(const vl_estimator_t *e, int32_t id)
 {
     for (uint32_t j = 0; j < e->num_prev_obs; ++j) {
         if (e->prev_obs[j].id == id) {
-            return &e->prev_obs[j];
+            return (int)j;
         }
     }
-    return NULL;
+    return -1;
 }
 
 /* Lower Cholesky factor L of a symmetric n x n A (row-major; L's upper part zero); -1 when A is
@@ -397,7 +397,8 @@ static void expected_motion_error(const vl_estimator_t *e, double q[6])
     }
 }
 
-int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count)
+int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count,
+                                     uint8_t *contradicted)
 {
     if (count >= VL_NOISE_DENSE_FRAME || !(e->stereo_row_var > 0.0) || !(e->step_noise_time2 > 0.0)) {
         return 0;
@@ -406,29 +407,36 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
     vl_stereo_noise_var(e->stereo_row_var, nv);
     expected_motion_error(e, q);
     vl_two_view_track_t tracks[VL_NOISE_DENSE_FRAME];
-    uint32_t obs[VL_NOISE_DENSE_FRAME];
+    uint32_t obs[VL_NOISE_DENSE_FRAME], prev_index[VL_NOISE_DENSE_FRAME];
     uint32_t n = 0, contradicting = 0;
     for (uint32_t i = 0; i < count; ++i) {
         const vl_stereo_obs_t *now = &frame->obs[i];
         if (!usable(e, now)) {
             continue;
         }
-        const vl_stereo_obs_t *prev = previous_observation(e, now->id);
-        if (prev == NULL || !usable(e, prev)) {
+        const int j = previous_observation(e, now->id);
+        if (j < 0 || !usable(e, &e->prev_obs[j])) {
             continue;
         }
-        if (track_terms(e, nv, q, prev, now, &tracks[n]) == 0) {
+        if (track_terms(e, nv, q, &e->prev_obs[j], now, &tracks[n]) == 0) {
             contradicting += !(tracks[n].chi2 <= e->cfg.gate_chi2);
+            prev_index[n] = (uint32_t)j;
             obs[n++] = i;
         }
     }
     vl_work_two_view(e, count, e->num_prev_obs, n);
     /* A track that alone contradicts the expected motion is left out of the fit (a moving
-     * object, a re-association); when most do, the motion was off, and all count. */
+     * object, a re-association); when most do, the motion was off, and all count. A track
+     * that does so in two frames in a row moves on its own: a frame's motion error is
+     * independent of the next's, so a static track seldom repeats it (README, Accuracy). */
     const int drop = 2u * contradicting < n && e->cfg.gate_chi2 > 0.0;
     uint8_t skip[VL_NOISE_DENSE_FRAME];
     for (uint32_t t = 0; t < n; ++t) {
         skip[t] = drop && !(tracks[t].chi2 <= e->cfg.gate_chi2);
+        contradicted[obs[t]] = skip[t];
+        if (skip[t] && e->prev_contradicted[prev_index[t]]) {
+            e->work_moved[obs[t]] = 1;
+        }
     }
     flag_moved(e, tracks, obs, n, skip);
     double info[36], b[6], rr, C[36], dx[6];

@@ -367,6 +367,7 @@ class Filter:
         self.prev_repeated = False  # the previous frame repeated the one before it
         self.velocity_matched = False
         self.moved = set()          # this frame's observations whose track contradicted its fellows' motion
+        self.contradicted = set()   # the previous frame's observations whose track alone contradicted q
         self.state_utime = None  # us; None until the first IMU sample
         self.last_imu_utime = None
         self.held_v = self.held_w = None
@@ -505,10 +506,12 @@ class Filter:
         # a sparse frame's velocity noise, matched on its tracks' two views before the update
         self.velocity_matched = False
         self.moved = set()
+        contradicted = set()
         if self.cfg["adaptive_noise"] and self.cfg["mode"] == "slam":
             self.observe_stereo_rows(frame)
             if had_frame and not repeated and not self.prev_repeated:
-                self.velocity_matched = self.adapt_velocity_two_view(frame)
+                self.velocity_matched = self.adapt_velocity_two_view(frame, contradicted)
+        self.contradicted = contradicted
         self.step_t2 = self.step_t = 0.0
         self.prev_repeated = repeated
         self.prev_frame = frame
@@ -946,13 +949,14 @@ class Filter:
                 moved.add(t[4])
         return moved if 2 * len(moved) < n else set()
 
-    def adapt_velocity_two_view(self, frame):
+    def adapt_velocity_two_view(self, frame, contradicted):
         """A sparse frame's tracks in both views, r = y - h(predicted motion, previous triangulation)
         = H delta + e (delta the right perturbation of the predicted pose, e both sightings' pixel
         noise at the stereo rows' estimate): a weighted least-squares fit of delta and its
         covariance C; each block matched against C plus the expected motion error q (the velocity
         variance x sum tau^2, the offsets' x (sum tau)^2). Tracks that alone contradict q are left
-        out; those that contradict the others' fit are broken (self.moved); a frame whose fit
+        out (their observations go to contradicted), and broken (self.moved) when they did so in the
+        previous frame too, as are those that contradict the others' fit; a frame whose fit
         residual exceeds its 99 % chi-square quantile is not matched."""
         if len(frame) >= VELOCITY_DENSE_FRAME or not self.var_rows > 0.0 or not self.step_t2 > 0.0:
             return False
@@ -964,9 +968,10 @@ class Filter:
         for i, o in enumerate(frame):
             if not self._usable(o):
                 continue
-            prev = next((x for x in self.prev_frame if x[0] == o[0]), None)
-            if prev is None or not self._usable(prev):
+            j = next((j for j, x in enumerate(self.prev_frame) if x[0] == o[0]), None)
+            if j is None or not self._usable(self.prev_frame[j]):
                 continue
+            prev = self.prev_frame[j]
             pw, dpw_dy = self.triangulate_world(compress(prev), self.frame_R, self.frame_p)
             b, cc = self.camera_point(pw)
             if b is None:
@@ -983,11 +988,15 @@ class Filter:
             except np.linalg.LinAlgError:
                 continue
             Hw, rw = np.linalg.solve(L, H), np.linalg.solve(L, r)
-            terms.append((Hw.T @ Hw, Hw.T @ rw, float(rw @ rw), chi2, i, Hw, rw))
+            terms.append((Hw.T @ Hw, Hw.T @ rw, float(rw @ rw), chi2, i, Hw, rw, j))
         contradicting = sum(not t[3] <= self.cfg["gate_chi2"] for t in terms)
         drop = 2 * contradicting < len(terms) and self.cfg["gate_chi2"] > 0.0
         kept = [t for t in terms if not (drop and not t[3] <= self.cfg["gate_chi2"])]
+        # a track that alone contradicts q in two frames in a row moves on its own
+        left_out = [t for t in terms if drop and not t[3] <= self.cfg["gate_chi2"]]
+        contradicted.update(t[4] for t in left_out)
         self.moved = self._moved_against_the_others(terms, kept)
+        self.moved.update(t[4] for t in left_out if t[7] in self.contradicted)
         if len(kept) < TWO_VIEW_MIN_PAIRS:
             return False
         info = sum(t[0] for t in kept)

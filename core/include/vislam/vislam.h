@@ -422,6 +422,9 @@ typedef struct {
     /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
     uint32_t num_prev_obs;
     vl_stereo_obs_t prev_obs[VL_MAX_FRAME_FEATURES];
+    /** prev_obs whose track alone contradicted the expected motion on its two views (a sparse frame's
+        minority; vl_noise_two_view.c): a second contradiction in a row breaks the track. */
+    uint8_t prev_contradicted[VL_MAX_FRAME_FEATURES];
 
     /** Prediction steps applied to P's core block only (vl_predict_settle applies them to the rest). */
     vl_deferred_prediction_t deferred;
