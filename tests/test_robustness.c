@@ -448,6 +448,42 @@ void test_a_sparse_frames_bad_tracks_neither_poison_the_noise_nor_stay(void)
     }
 }
 
+/*
+ * A frame of three tracks cannot judge one against the other two (they leave six
+ * rows for six unknowns), so a track on a moving object is absorbed by the
+ * frame's motion fit. It moves on in the next frame, where a standing track's
+ * motion error is drawn afresh: a track that alone contradicts the expected
+ * motion in two frames in a row breaks, and not before the second.
+ */
+void test_a_moving_track_among_three_breaks_at_its_second_contradiction(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    static vl_stereo_frame_t f;
+    uint64_t broken[3] = {0, 0, 0};
+    for (int k = 0; k < 23; ++k) {
+        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        make_frame(&cfg, &f, T0 + k * STEP);
+        f.count = 3;
+        for (uint32_t i = 0; i < f.count; ++i) {
+            f.obs[i].v_right += ((i + (uint32_t)k) % 2u) ? 0.3 : -0.3; /* the rows' white noise */
+        }
+        if (k >= 20) { /* track 1 moves sideways, 16 px a frame: over the two-view gate, under the update's */
+            f.obs[1].u_left += 16.0 * (double)(k - 19);
+            f.obs[1].u_right += 16.0 * (double)(k - 19);
+        }
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
+        if (k >= 20) {
+            broken[k - 20] = vl_get_counters(&est)->tracks_inconsistent;
+        }
+    }
+    TEST_ASSERT_EQUAL_UINT64(0u, broken[0]); /* one contradiction: left out of the fit, kept */
+    TEST_ASSERT_EQUAL_UINT64(1u, broken[1]); /* the second in a row: broken */
+    TEST_ASSERT_EQUAL_UINT64(2u, broken[2]); /* its restart moves on: broken again */
+}
+
 /* ------------------------------------------------------------ divergence */
 
 void test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_calibration(void)
@@ -715,6 +751,7 @@ int main(void)
     RUN_TEST(test_absurd_imu_samples_are_refused_and_counted);
     RUN_TEST(test_pixels_outside_the_image_and_absurd_disparity_are_refused);
     RUN_TEST(test_a_sparse_frames_bad_tracks_neither_poison_the_noise_nor_stay);
+    RUN_TEST(test_a_moving_track_among_three_breaks_at_its_second_contradiction);
     RUN_TEST(test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_calibration);
     RUN_TEST(test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged);
     RUN_TEST(test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed_out);
