@@ -991,9 +991,10 @@ class Filter:
             terms.append((Hw.T @ Hw, Hw.T @ rw, float(rw @ rw), chi2, i, Hw, rw, j))
         contradicting = sum(not t[3] <= self.cfg["gate_chi2"] for t in terms)
         drop = 2 * contradicting < len(terms) and self.cfg["gate_chi2"] > 0.0
-        kept = [t for t in terms if not (drop and not t[3] <= self.cfg["gate_chi2"])]
+        out = [drop and not t[3] <= self.cfg["gate_chi2"] for t in terms]
+        kept = [t for t, o in zip(terms, out) if not o]
         # a track that alone contradicts q in two frames in a row moves on its own
-        left_out = [t for t in terms if drop and not t[3] <= self.cfg["gate_chi2"]]
+        left_out = [t for t, o in zip(terms, out) if o]
         contradicted.update(t[4] for t in left_out)
         self.moved = self._moved_against_the_others(terms, kept)
         self.moved.update(t[4] for t in left_out if t[7] in self.contradicted)
