@@ -280,10 +280,10 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
 /*
  * The joint update on rows[0, used), then the noise adaptation from it: the used
  * rows and the rejected ones, rows[partitioned, k) (the inliers between were
- * deferred by the time bound).
+ * deferred by the time bound); count is the frame's observations.
  */
 static vl_status_t update_and_adapt(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t used, uint32_t partitioned,
-                                    uint32_t k)
+                                    uint32_t k, uint32_t count)
 {
     double prior_pose[36]; /* read by the adaptation only */
     for (uint32_t i = 0; i < 6 && e->cfg.adaptive_noise; ++i) {
@@ -295,19 +295,20 @@ static vl_status_t update_and_adapt(vl_estimator_t *e, const vl_la_obs_t *rows, 
     const int adapt = st == VL_OK && used > 0 && e->cfg.adaptive_noise;
     vl_work_update(e, vl_state_dim(e), used, adapt, used + (k - partitioned));
     if (adapt) {
-        vl_noise_adapt_pixel(e, rows, used, partitioned, k);
+        vl_noise_adapt_pixel(e, rows, used, partitioned, k, count);
         vl_noise_adapt_velocity(e, prior_pose, used);
     }
     return st;
 }
 
 /*
- * Fuses the frame's k update rows: the gate; a re-associated frame is distrusted
- * as a whole; otherwise RANSAC picks the inliers, the joint update runs on them
- * (at most max_update_observations), the noise adapts, and the rejected rows
- * that agree with the corrected state are rescued in a second update.
+ * Fuses the frame's k update rows (of its count observations): the gate; a
+ * re-associated frame is distrusted as a whole; otherwise RANSAC picks the
+ * inliers, the joint update runs on them (at most max_update_observations), the
+ * noise adapts, and the rejected rows that agree with the corrected state are
+ * rescued in a second update.
  */
-static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t k)
+static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count, uint32_t k)
 {
     vl_la_obs_t *rows = e->work_rows;
     if (k == 0) {
@@ -315,7 +316,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     }
     const uint32_t n = vl_state_dim(e);
     if (e->cfg.gate_chi2 <= 0.0) {
-        return update_and_adapt(e, rows, k, k, k); /* no outlier rejection at all (the seed's plain EKF) */
+        return update_and_adapt(e, rows, k, k, k, count); /* no outlier rejection at all (the seed's plain EKF) */
     }
     const uint32_t contradicting = vl_outliers_gate(e, rows, k);
     vl_work_gate(e, k);
@@ -341,7 +342,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     /* One cap for both updates: the state size does not change between them. */
     const uint32_t cap = vl_rows_cap(e);
     const uint32_t inliers = vl_rows_limit(e, rows, partitioned, cap);
-    vl_status_t st = update_and_adapt(e, rows, inliers, partitioned, k);
+    vl_status_t st = update_and_adapt(e, rows, inliers, partitioned, k, count);
     if (st != VL_OK || rest == 0) {
         e->counters.observations_gated += rest;
         return st;
@@ -455,7 +456,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     /* 3. Outlier rejection and the joint update. */
     const uint64_t reassociated_before = e->counters.frames_reassociated;
     const uint64_t used_before = e->counters.observations_used;
-    const vl_status_t st = fuse_rows(e, frame, k);
+    const vl_status_t st = fuse_rows(e, frame, count, k);
     if (st != VL_OK) {
         vl_log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
         result = st;

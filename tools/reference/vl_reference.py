@@ -40,6 +40,7 @@ CONTRADICTION_RUN = 2        # re-associated frames in a row that widen the nois
 PIXEL_NOISE_MEMORY = 1000.0  # rows the pixel noise estimate averages over
 CHI2_1_MEDIAN = 0.455        # median of chi-square(1): a median of squares to a variance
 PIXEL_SAMPLE_CAP = 100.0     # a pixel variance sample counts for at most this many variances in use
+PIXEL_MIN_RESIDUAL_SHARE = 0.05  # a sparse frame's fitted row expected to keep less of its noise gives no sample
 VELOCITY_DENSE_FRAME = 16     # observations from which a frame determines the pose on its own
 VELOCITY_NOISE_GAIN = 0.05    # log-variance step per dense frame
 VELOCITY_SPARSE_GAIN = 0.1    # per sparse frame (world frame), times the share of the block's prior variance it removed
@@ -718,13 +719,13 @@ class Filter:
 
     # ---- outliers and the joint update (vl_outliers.c, vl_update.c, vl_noise.c)
 
-    def update_and_adapt(self, rows, used, rejected):
+    def update_and_adapt(self, rows, used, rejected, sparse):
         """The joint update on rows[:used], then the noise adaptation from the used and the rejected
-        rows."""
+        rows (sparse: the frame has fewer than VELOCITY_DENSE_FRAME observations)."""
         prior_pose = self.P[:6, :6].copy()
         ok = self.apply(rows[:used])
         if ok and used > 0 and self.cfg["adaptive_noise"]:
-            self.adapt_pixel_noise(rows[:used], rejected)
+            self.adapt_pixel_noise(rows[:used], rejected, sparse)
             self.adapt_velocity_noise(prior_pose, used)
         return ok
 
@@ -736,7 +737,7 @@ class Filter:
         if k == 0:
             return True
         if cfg["gate_chi2"] <= 0.0:  # no outlier rejection at all (the seed's plain EKF)
-            return self.update_and_adapt(rows, k, [])
+            return self.update_and_adapt(rows, k, [], len(frame) < VELOCITY_DENSE_FRAME)
         inlier = [mahalanobis3(self.innovation_cov(r), r.residual) <= cfg["gate_chi2"] for r in rows]
         failed = k - sum(inlier)
         if k >= MIN_ROWS_FOR_REASSOCIATION and failed > cfg["max_broken_fraction"] * k:
@@ -770,7 +771,7 @@ class Filter:
                     j = (i * partitioned) // cap
                     rows[i], rows[j] = rows[j], rows[i]
             used = cap
-        ok = self.update_and_adapt(rows, used, rows[partitioned:])
+        ok = self.update_and_adapt(rows, used, rows[partitioned:], len(frame) < VELOCITY_DENSE_FRAME)
         if not ok or rest == 0:
             return ok
         rescued = []
@@ -880,20 +881,28 @@ class Filter:
         self.counters["observations_used"] += len(rows)
         return True
 
-    def adapt_pixel_noise(self, used, rejected):
+    def adapt_pixel_noise(self, used, rejected, sparse):
         """Residual-based covariance matching: after the update, a used row's post-fit residual e
         has E[e^2] = R_rr - (H P+ H^T)_rr, a rejected row's E[e^2] = R_rr + (H P+ H^T)_rr, so
-        (e^2 +- (H P+ H^T)_rr) / share is a sample of the pixel variance; the median over the used
-        and the rejected rows (the deferred ones left out), each capped at 100 variances in use (a
-        frame of one or two rows has no majority to outvote an outlier), / 0.455, enters an average
-        that forgets faster the more rows there are."""
+        (e^2 +- (H P+ H^T)_rr) / share is a sample of the pixel variance; on a sparse frame, whose
+        fit absorbs much of each row, R_rr e^2 / E[e^2] / share instead (rows expected to keep under
+        5 % of R_rr left out). The median over the used and the rejected rows (the deferred ones
+        left out), each capped at 100 variances in use (a frame of one or two rows has no majority
+        to outvote an outlier), / 0.455, enters an average that forgets faster the more rows there
+        are."""
         samples = []
         for rows, fitted in ((used, 1.0), (rejected, -1.0)):
             for r in rows:
                 S = self.innovation_cov(r)
                 c = CORE_DIM + 3 * r.slot
                 e = r.residual - r.H_pose @ self.dx[:6] - r.H_landmark @ self.dx[c:c + 3]
-                samples.extend((e * e + fitted * (np.diag(S) - r.noise)) / STEREO_SHARE)
+                fit = np.diag(S) - r.noise
+                if not sparse:
+                    samples.extend((e * e + fitted * fit) / STEREO_SHARE)
+                    continue
+                expected = r.noise - fitted * fit
+                keep = expected > PIXEL_MIN_RESIDUAL_SHARE * r.noise
+                samples.extend((r.noise * e * e / np.where(keep, expected, 1.0) / STEREO_SHARE)[keep])
         if len(samples) < 3:
             return
         samples = np.minimum(np.array(samples), PIXEL_SAMPLE_CAP * self.var_px)
