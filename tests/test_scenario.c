@@ -436,10 +436,10 @@ void test_sparse_frames_match_the_velocity_noise_on_two_views(void)
 /*
  * On a sparse frame the update's fit absorbs much of each row, and the pixel
  * noise is matched on each row against what the fit leaves of it. From a prior
- * 10x too large or too small the estimate ends within 2.5x of the truth (1.9x
- * and 1.5x; the stereo rows and the plain model leave the rest), and both ends
- * near each other. Taken like a dense frame's rows (the squared residual plus
- * the fitted term, under the median's scaling) it ended at 4.5x and 3.5x.
+ * 10x too large or too small the estimate ends within 2.5x of the truth (at 1.9x
+ * and 1.5x), and both ends near each other. Taken like a dense frame's rows (the
+ * squared residual plus the fitted term, under the median's scaling) it ended at
+ * 4.5x and 3.5x.
  */
 void test_sparse_frames_match_the_pixel_noise(void)
 {
