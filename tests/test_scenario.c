@@ -19,9 +19,9 @@
 #define TWO_VIEW_CLOSES 0.25
 #define TWO_VIEW_ENDS_APART 0.1
 /* How far (log) a sparse drive's adapted pixel noise may end from the truth (2.5x), and its end
- * points from either side from each other. */
+ * points from either side from each other (1.5x). */
 #define SPARSE_PIXEL_WITHIN 0.92
-#define SPARSE_PIXEL_ENDS_APART 0.3
+#define SPARSE_PIXEL_ENDS_APART 0.4
 
 /* Under the sanitizers a dense drive runs about 30x slower: of this file's 5 minutes there on a
  * 2-core AVX2 host, its three dense Monte-Carlo tests took 4.5. Their figures are deterministic
@@ -436,10 +436,10 @@ void test_sparse_frames_match_the_velocity_noise_on_two_views(void)
 /*
  * On a sparse frame the update's fit absorbs much of each row, and the pixel
  * noise is matched on each row against what the fit leaves of it. From a prior
- * 10x too large or too small the estimate ends within 2.5x of the truth (at 1.9x
- * and 1.5x), and both ends near each other. Taken like a dense frame's rows (the
- * squared residual plus the fitted term, under the median's scaling) it ended at
- * 4.5x and 3.5x.
+ * 10x too large or too small the estimate ends within 2.5x of the truth (at 1.5x
+ * and 1.2x), and both ends within 1.5x of each other. Taken like a dense frame's
+ * rows (the squared residual plus the fitted term, under the median's scaling) it
+ * ended at 5.6x and 2.2x, 2.6x apart.
  */
 void test_sparse_frames_match_the_pixel_noise(void)
 {
@@ -449,7 +449,7 @@ void test_sparse_frames_match_the_pixel_noise(void)
     double got[2];
     for (int f = 0; f < 2; ++f) {
         scenario(41, 1100, 0.3, &sc, &cfg);
-        sc.points_per_meter *= 0.06;
+        sc.points_per_meter *= 0.05;
         cfg.pixel_noise = sc.pixel_noise * prior_factors[f];
         adapted_noise(&sc, &cfg, &pose);
         const double obs_per_frame = (double)vl_get_counters(&est)->observations_received / 1100.0;

@@ -15,6 +15,10 @@
 #define VL_PIXEL_NOISE_MEMORY 1000.0
 /* Largest pixel variance sample, in variances in use: 10 sigma (lower caps cost the sparsest noisy cells). */
 #define VL_PIXEL_SAMPLE_CAP 100.0
+/* Observations under which a frame's pixel rows count against their expected post-fit variance
+ * (pixel_samples). Measured from 8 to 24: the real drives' frames of 12 to 15 did better with the
+ * dense frames' rule, the simulated ones were level (README, Accuracy). */
+#define VL_PIXEL_SPARSE_FRAME 12u
 /* A sparse frame's fitted row whose expected post-fit variance is under this share of its noise
  * (the fit absorbed nearly all of it) gives no sample: its ratio would multiply its own noise. */
 #define VL_PIXEL_MIN_RESIDUAL_SHARE 0.05
@@ -130,7 +134,7 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
 {
     double samples[VL_OBS_DIM * VL_MAX_LANDMARKS];
     uint32_t n = 0;
-    const int sparse = frame_observations < VL_NOISE_DENSE_FRAME;
+    const int sparse = frame_observations < VL_PIXEL_SPARSE_FRAME;
     pixel_samples(e, rows, 0, used, 1.0, sparse, samples, &n);
     pixel_samples(e, rows, first_rejected, k, -1.0, sparse, samples, &n);
     if (n < 3u) {

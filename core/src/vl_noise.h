@@ -27,9 +27,9 @@
  * that left its correction in e->work_dx: the rows it used (rows[0 .. used)) and
  * the rejected ones (rows[first_rejected .. k), outliers included). Inliers the
  * update deferred (rows[used .. first_rejected)) were not fitted, so their
- * residuals say nothing about the pixel noise. A frame of fewer than
- * VL_NOISE_DENSE_FRAME observations (frame_observations, the frame's own count)
- * weighs each row against its expected post-fit variance.
+ * residuals say nothing about the pixel noise. A sparse frame (by
+ * frame_observations, the frame's own count) weighs each row against its
+ * expected post-fit variance.
  */
 void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t used, uint32_t first_rejected,
                           uint32_t k, uint32_t frame_observations);

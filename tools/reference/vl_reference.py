@@ -40,6 +40,7 @@ CONTRADICTION_RUN = 2        # re-associated frames in a row that widen the nois
 PIXEL_NOISE_MEMORY = 1000.0  # rows the pixel noise estimate averages over
 CHI2_1_MEDIAN = 0.455        # median of chi-square(1): a median of squares to a variance
 PIXEL_SAMPLE_CAP = 100.0     # a pixel variance sample counts for at most this many variances in use
+PIXEL_SPARSE_FRAME = 12      # observations under which a frame's pixel rows count against their post-fit variance
 PIXEL_MIN_RESIDUAL_SHARE = 0.05  # a sparse frame's fitted row expected to keep less of its noise gives no sample
 VELOCITY_DENSE_FRAME = 16     # observations from which a frame determines the pose on its own
 VELOCITY_NOISE_GAIN = 0.05    # log-variance step per dense frame
@@ -721,7 +722,7 @@ class Filter:
 
     def update_and_adapt(self, rows, used, rejected, sparse):
         """The joint update on rows[:used], then the noise adaptation from the used and the rejected
-        rows (sparse: the frame has fewer than VELOCITY_DENSE_FRAME observations)."""
+        rows (sparse: the frame has fewer than PIXEL_SPARSE_FRAME observations)."""
         prior_pose = self.P[:6, :6].copy()
         ok = self.apply(rows[:used])
         if ok and used > 0 and self.cfg["adaptive_noise"]:
@@ -737,7 +738,7 @@ class Filter:
         if k == 0:
             return True
         if cfg["gate_chi2"] <= 0.0:  # no outlier rejection at all (the seed's plain EKF)
-            return self.update_and_adapt(rows, k, [], len(frame) < VELOCITY_DENSE_FRAME)
+            return self.update_and_adapt(rows, k, [], len(frame) < PIXEL_SPARSE_FRAME)
         inlier = [mahalanobis3(self.innovation_cov(r), r.residual) <= cfg["gate_chi2"] for r in rows]
         failed = k - sum(inlier)
         if k >= MIN_ROWS_FOR_REASSOCIATION and failed > cfg["max_broken_fraction"] * k:
@@ -771,7 +772,7 @@ class Filter:
                     j = (i * partitioned) // cap
                     rows[i], rows[j] = rows[j], rows[i]
             used = cap
-        ok = self.update_and_adapt(rows, used, rows[partitioned:], len(frame) < VELOCITY_DENSE_FRAME)
+        ok = self.update_and_adapt(rows, used, rows[partitioned:], len(frame) < PIXEL_SPARSE_FRAME)
         if not ok or rest == 0:
             return ok
         rescued = []
