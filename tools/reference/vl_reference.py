@@ -720,13 +720,13 @@ class Filter:
 
     # ---- outliers and the joint update (vl_outliers.c, vl_update.c, vl_noise.c)
 
-    def update_and_adapt(self, rows, used, rejected, sparse):
+    def update_and_adapt(self, rows, used, rejected, frame_observations):
         """The joint update on rows[:used], then the noise adaptation from the used and the rejected
-        rows (sparse: the frame has fewer than PIXEL_SPARSE_FRAME observations)."""
+        rows (frame_observations: the frame's own count)."""
         prior_pose = self.P[:6, :6].copy()
         ok = self.apply(rows[:used])
         if ok and used > 0 and self.cfg["adaptive_noise"]:
-            self.adapt_pixel_noise(rows[:used], rejected, sparse)
+            self.adapt_pixel_noise(rows[:used], rejected, frame_observations)
             self.adapt_velocity_noise(prior_pose, used)
         return ok
 
@@ -738,7 +738,7 @@ class Filter:
         if k == 0:
             return True
         if cfg["gate_chi2"] <= 0.0:  # no outlier rejection at all (the seed's plain EKF)
-            return self.update_and_adapt(rows, k, [], len(frame) < PIXEL_SPARSE_FRAME)
+            return self.update_and_adapt(rows, k, [], len(frame))
         inlier = [mahalanobis3(self.innovation_cov(r), r.residual) <= cfg["gate_chi2"] for r in rows]
         failed = k - sum(inlier)
         if k >= MIN_ROWS_FOR_REASSOCIATION and failed > cfg["max_broken_fraction"] * k:
@@ -772,7 +772,7 @@ class Filter:
                     j = (i * partitioned) // cap
                     rows[i], rows[j] = rows[j], rows[i]
             used = cap
-        ok = self.update_and_adapt(rows, used, rows[partitioned:], len(frame) < PIXEL_SPARSE_FRAME)
+        ok = self.update_and_adapt(rows, used, rows[partitioned:], len(frame))
         if not ok or rest == 0:
             return ok
         rescued = []
@@ -882,7 +882,7 @@ class Filter:
         self.counters["observations_used"] += len(rows)
         return True
 
-    def adapt_pixel_noise(self, used, rejected, sparse):
+    def adapt_pixel_noise(self, used, rejected, frame_observations):
         """Residual-based covariance matching: after the update, a used row's post-fit residual e
         has E[e^2] = R_rr - (H P+ H^T)_rr, a rejected row's E[e^2] = R_rr + (H P+ H^T)_rr, so
         (e^2 +- (H P+ H^T)_rr) / share is a sample of the pixel variance; on a sparse frame, whose
@@ -890,7 +890,8 @@ class Filter:
         5 % of R_rr left out). The median over the used and the rejected rows (the deferred ones
         left out), each capped at 100 variances in use (a frame of one or two rows has no majority
         to outvote an outlier), / 0.455, enters an average that forgets faster the more rows there
-        are."""
+        are. A frame is sparse under PIXEL_SPARSE_FRAME observations."""
+        sparse = frame_observations < PIXEL_SPARSE_FRAME
         samples = []
         for rows, fitted in ((used, 1.0), (rejected, -1.0)):
             for r in rows:
