@@ -182,6 +182,24 @@ def test_reference_agrees_on_moving_tracks(build_dir, tmp_path, monkeypatch):
     assert compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)]) == 1
 
 
+def test_reference_agrees_when_the_pixel_estimate_drops(build_dir, tmp_path, monkeypatch):
+    """From a pixel prior 10x too large the sample's dense frames show a fraction of it: the fast
+    average of their log-ratio crosses a ninth by frame 4 and the estimate goes to their level, in the
+    reference too (it agrees), and that matters (without the drop in the reference alone the poses
+    move)."""
+    from reference import compare as compare_tool
+    from reference import vl_reference
+    ini = tmp_path / "pixel_x10.ini"
+    ini.write_text("[noise]\npixel = 15\n")
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "30")
+    assert fig["agreement"]["frames_compared"] == 30
+    assert fig["agreement"]["position_max_m"] < TOLERANCE
+    assert rc == 0
+    monkeypatch.setattr(vl_reference, "PIXEL_DROP_RATIO", float("inf"))
+    args = [str(SAMPLE), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", "30"]
+    assert compare_tool.main([*args, "--config", str(ini)]) == 1
+
+
 def test_reference_agrees_without_outlier_rejection(build_dir, tmp_path):
     """gate_chi2 = 0 (no outlier test at all) with the noise adapted: every row is used and read by the
     adaptation. Without rejection the sample's outliers leave worse-conditioned updates, so the two

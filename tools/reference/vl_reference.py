@@ -42,6 +42,8 @@ CHI2_1_MEDIAN = 0.455        # median of chi-square(1): a median of squares to a
 PIXEL_SAMPLE_CAP = 100.0     # a pixel variance sample counts for at most this many variances in use
 PIXEL_SPARSE_FRAME = 12      # observations under which a frame's pixel rows count against their post-fit variance
 PIXEL_MIN_RESIDUAL_SHARE = 0.05  # a sparse frame's fitted row expected to keep less of its noise gives no sample
+PIXEL_DROP_GAIN = 0.2        # a dense frame's weight in the fast average of log(sample / estimate)
+PIXEL_DROP_RATIO = 9.0       # that average under -log(this): the estimate goes to the frames' level
 VELOCITY_DENSE_FRAME = 16     # observations from which a frame determines the pose on its own
 VELOCITY_NOISE_GAIN = 0.05    # log-variance step per dense frame
 VELOCITY_SPARSE_GAIN = 0.1    # per sparse frame (world frame), times the share of the block's prior variance it removed
@@ -362,6 +364,7 @@ class Filter:
         self.var_v = cfg["linear_velocity"] ** 2
         self.var_w = cfg["angular_velocity"] ** 2
         self.var_px = cfg["pixel"] ** 2
+        self.px_log_ratio = 0.0     # fast average of a dense frame's log(sample / var_px)
         self.var_rows = 0.0         # px^2: the stereo rows' white noise, 0 until measured
         self.rows_evidence = 0.0    # observations it averages over
         self.step_t2 = 0.0          # s^2: sum of tau^2 x noise share since the last frame
@@ -890,7 +893,9 @@ class Filter:
         5 % of R_rr left out). The median over the used and the rejected rows (the deferred ones
         left out), each capped at 100 variances in use (a frame of one or two rows has no majority
         to outvote an outlier), / 0.455, enters an average that forgets faster the more rows there
-        are. A frame is sparse under PIXEL_SPARSE_FRAME observations."""
+        are. A frame is sparse under PIXEL_SPARSE_FRAME observations. A dense frame's sample (floored
+        at a hundredth of the estimate) also enters a fast average of its log-ratio to the estimate;
+        under -log(PIXEL_DROP_RATIO) the estimate goes to exp(average) times itself, the average to 0."""
         sparse = frame_observations < PIXEL_SPARSE_FRAME
         samples = []
         for rows, fitted in ((used, 1.0), (rejected, -1.0)):
@@ -909,6 +914,14 @@ class Filter:
             return
         samples = np.minimum(np.array(samples), PIXEL_SAMPLE_CAP * self.var_px)
         sample = np.partition(samples, len(samples) // 2)[len(samples) // 2] / CHI2_1_MEDIAN
+        if not sparse:
+            floor = self.var_px / PIXEL_SAMPLE_CAP
+            r = math.log(max(sample, floor) / self.var_px)
+            self.px_log_ratio = (1.0 - PIXEL_DROP_GAIN) * self.px_log_ratio + PIXEL_DROP_GAIN * r
+            if self.px_log_ratio < -math.log(PIXEL_DROP_RATIO):
+                self.var_px = _clamp_var(self.var_px * math.exp(self.px_log_ratio), self.cfg["pixel"])
+                self.px_log_ratio = 0.0
+                return
         w = 1.0 - math.exp(-(len(samples) // 3) / PIXEL_NOISE_MEMORY)
         self.var_px = _clamp_var((1.0 - w) * self.var_px + w * sample, self.cfg["pixel"])
 

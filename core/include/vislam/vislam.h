@@ -400,6 +400,7 @@ typedef struct {
     double linear_velocity_var;  /**< (m/s)^2 per sample */
     double angular_velocity_var; /**< (rad/s)^2 per sample */
     double pixel_var;            /**< px^2 */
+    double pixel_log_ratio;      /**< fast average of log(sample / pixel_var) over dense frames (vl_noise.c) */
     uint32_t reassociated_run;   /**< consecutive frames distrusted as re-associations */
 
     /** The sparse frames' two-view velocity noise matching (vl_noise_two_view.c). */
