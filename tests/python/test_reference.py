@@ -40,6 +40,13 @@ def compare(build_dir, tmp_path, *args, log=SAMPLE):
     return proc.returncode, json.loads(out.read_text())
 
 
+def assert_agrees(rc, fig, frames):
+    """The comparison compared every frame and the two filters agree within TOLERANCE."""
+    assert fig["agreement"]["frames_compared"] == frames
+    assert fig["agreement"]["position_max_m"] < TOLERANCE
+    assert rc == 0
+
+
 @pytest.mark.parametrize("preset,steps", [("default", 50), ("seed", 30)])
 def test_reference_agrees_with_vislam(build_dir, tmp_path, preset, steps):
     rc, fig = compare(build_dir, tmp_path, "--preset", preset, "--max-steps", str(steps))
@@ -84,9 +91,7 @@ def test_reference_agrees_with_rotated_deferrals(build_dir, tmp_path):
     ini = tmp_path / "rotate.ini"
     ini.write_text("[estimator]\nmax_update_work = 4\nrotate_deferred = true\n")
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "30")
-    assert fig["agreement"]["frames_compared"] == 30
-    assert fig["agreement"]["position_max_m"] < TOLERANCE
-    assert rc == 0
+    assert_agrees(rc, fig, 30)
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "30", "--set", "rotate_deferred=false")
     assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
     assert rc == 1
@@ -102,9 +107,7 @@ def test_reference_agrees_with_repeat_anchor_noise_and_carried_walk(build_dir, t
     ini = tmp_path / "anchor.ini"
     ini.write_text("[noise]\nrepeat_anchor_noise = 0.5\n")
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), log=log)
-    assert fig["agreement"]["frames_compared"] == 40
-    assert fig["agreement"]["position_max_m"] < TOLERANCE
-    assert rc == 0
+    assert_agrees(rc, fig, 40)
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--set", "repeat_anchor_noise=0", log=log)
     assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
     assert rc == 1
@@ -126,9 +129,7 @@ def test_reference_agrees_on_a_sparse_drive_with_outliers(build_dir, tmp_path, m
                     "100", "--seed", "3", "--out", str(log), "--truth", str(tmp_path / "truth.tum")], check=True,
                    capture_output=True)
     rc, fig = compare(build_dir, tmp_path, log=log)
-    assert fig["agreement"]["frames_compared"] == 100
-    assert fig["agreement"]["position_max_m"] < TOLERANCE
-    assert rc == 0
+    assert_agrees(rc, fig, 100)
     # its frames are sparse, so new tracks are admitted at first sight, in the reference too
     rc, fig = compare(build_dir, tmp_path, "--set", "first_sight_below=0", log=log)
     assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
@@ -192,9 +193,7 @@ def test_reference_agrees_when_the_pixel_estimate_drops(build_dir, tmp_path, mon
     ini = tmp_path / "pixel_x10.ini"
     ini.write_text("[noise]\npixel = 15\n")
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "30")
-    assert fig["agreement"]["frames_compared"] == 30
-    assert fig["agreement"]["position_max_m"] < TOLERANCE
-    assert rc == 0
+    assert_agrees(rc, fig, 30)
     monkeypatch.setattr(vl_reference, "PIXEL_DROP_RATIO", float("inf"))
     args = [str(SAMPLE), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", "30"]
     assert compare_tool.main([*args, "--config", str(ini)]) == 1
