@@ -115,10 +115,12 @@ static void pixel_samples(const vl_estimator_t *e, const vl_la_obs_t *rows, uint
                 res -= rows[i].H_landmark[3 * r + j] * e->work_dx[rows[i].landmark_col + j];
             }
             const double R = rows[i].noise_var[r], fit = S[4 * r] - R; /* (H P+ H^T)_rr */
-            const double expected = R - fitted * fit;
             if (!sparse) {
                 samples[(*n)++] = (res * res + fitted * fit) / share[r];
-            } else if (expected > VL_PIXEL_MIN_RESIDUAL_SHARE * R) {
+                continue;
+            }
+            const double expected = R - fitted * fit;
+            if (expected > VL_PIXEL_MIN_RESIDUAL_SHARE * R) {
                 samples[(*n)++] = R * (res * res / expected) / share[r];
             }
         }

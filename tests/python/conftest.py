@@ -27,6 +27,15 @@ def vislam_types():
 
 
 @pytest.fixture(scope="session")
+def build_dir(vislam_types):
+    """The build directory with vislam-run ($VISLAM_BUILD_DIR, else <repo>/build), or skip."""
+    build = Path(os.environ.get("VISLAM_BUILD_DIR") or os.environ.get("VL_BUILD_DIR") or REPO / "build")
+    if not (build / "bin" / "vislam-run").is_file():
+        pytest.skip(f"{build}/bin/vislam-run not built")
+    return build
+
+
+@pytest.fixture(scope="session")
 def shared_data():
     """Directory of the seed datasets, or skip when it is absent."""
     if not (SHARED_DATA / "0027.npz").is_file():

@@ -22,14 +22,6 @@ SAMPLE = REPO / "data" / "sample.lcmlog"
 TOLERANCE = 1e-8  # m and rad
 
 
-@pytest.fixture(scope="module")
-def build_dir(vislam_types):
-    build = Path(os.environ.get("VISLAM_BUILD_DIR") or os.environ.get("VL_BUILD_DIR") or REPO / "build")
-    if not (build / "bin" / "vislam-run").is_file():
-        pytest.skip(f"{build}/bin/vislam-run not built")
-    return build
-
-
 def compare(build_dir, tmp_path, *args, log=SAMPLE):
     """Runs the comparison; returns (exit status, its JSON figures)."""
     out = tmp_path / "compare.json"
