@@ -5,7 +5,7 @@ import pytest
 
 from vislam_tools import ToolError
 from vislam_tools.conditions import (GIVEN_ANGULAR_STD, GIVEN_LINEAR_STD, clean_velocities, keep_every, main,
-                                     make_condition, observations_per_step)
+                                     make_condition, observations_per_step, sparse_tracker)
 from vislam_tools.geometry import integrate_dead_reckoning, se3_exp, se3_inv
 from vislam_tools.metrics import ate
 from vislam_tools.trajio import load_npz, read_ground_truth, load_calibration
@@ -142,11 +142,54 @@ def test_given_with_density_and_summary(synthetic, tmp_path):
     assert s["observations_per_step"] == pytest.approx(observations_per_step(keep_every(src["features"], 5)))
 
 
+def test_sparse_tracker_keeps_its_tracks_and_fills_free_places(synthetic):
+    feats = np.load(synthetic[0])["features"]
+    observed = np.all(feats != -1, axis=0)
+    for n in (1, 3, 8):
+        out = sparse_tracker(feats, n, np.random.default_rng(3))
+        kept = np.all(out != -1, axis=0)
+        np.testing.assert_array_equal(out[:, kept], feats[:, kept])  # kept observations unchanged
+        assert np.all(kept <= observed)
+        counts = kept.sum(axis=0)
+        assert counts.max() <= n
+        started = np.zeros(M, dtype=bool)
+        for t in range(T):
+            if t > 0:
+                # a kept track continues while its id is observed
+                assert np.all(kept[kept[:, t - 1] & observed[:, t], t])
+            # free places are filled while unkept, never-kept ids are there to take
+            free_candidates = observed[:, t] & ~started & ~kept[:, t]
+            assert counts[t] == n or not free_candidates.any()
+            # a track, once dropped, never comes back
+            assert not np.any(kept[:, t] & started & ~kept[:, t - 1]) if t > 0 else True
+            started |= kept[:, t]
+    a = sparse_tracker(feats, 3, np.random.default_rng(3))
+    np.testing.assert_array_equal(a, sparse_tracker(feats, 3, np.random.default_rng(3)))
+    assert not np.array_equal(a, sparse_tracker(feats, 3, np.random.default_rng(4)))
+    with pytest.raises(ToolError):
+        sparse_tracker(feats, 0, np.random.default_rng(0))
+
+
+def test_max_tracks_after_the_noise_and_in_the_summary(synthetic, tmp_path):
+    path = synthetic[0]
+    out, summ, plain = tmp_path / "s.npz", tmp_path / "s.json", tmp_path / "p.npz"
+    args = [str(path), "--velocity-noise-scale", "2", "--seed", "9"]
+    assert main([args[0], str(out)] + args[1:] + ["--max-tracks", "4", "--summary-json", str(summ)]) == 0
+    assert main([args[0], str(plain)] + args[1:]) == 0
+    d, p = np.load(out), np.load(plain)
+    # the tracker draws after the noise, so the velocities are the same as without it
+    np.testing.assert_array_equal(d["linear_velocity"], p["linear_velocity"])
+    s = json.loads(summ.read_text())
+    assert s["max_tracks"] == 4
+    assert s["observations_per_step"] <= 4
+
+
 @pytest.mark.parametrize("extra, message", [
     (["--velocities", "clean"], "needs --gt"),
     (["--velocity-noise-scale", "0.5"], "must be >= 1"),
     (["--velocity-noise-scale", "2", "--velocity-noise", "0.1,0.01"], "not both"),
     (["--keep-every", "0"], ">= 1"),
+    (["--max-tracks", "0"], "--max-tracks must be >= 1"),
 ])
 def test_errors_are_messages(synthetic, tmp_path, capsys, extra, message):
     assert main([str(synthetic[0]), str(tmp_path / "x.npz")] + extra) == 1

@@ -2,7 +2,8 @@
 
 The output converts with tools/npz2lcm like the seed datasets. One condition is a choice of
 velocities (the given, noisy ones, or clean ones derived from the ground truth), extra Gaussian
-velocity noise, and a feature density (every K-th track id kept).
+velocity noise, and a feature density: every K-th track id kept, or the tracks a sparse tracker of
+at most N tracks at once would keep.
 
 Clean velocities: the ground truth is KITTI left-camera poses; with w_T_i = w_T_cam * cam_T_imu
 and the seed's motion model w_T_i(t+1) = w_T_i(t) exp(tau_t hat(u_t)), the body-frame twist is
@@ -35,9 +36,19 @@ Velocities:
           reproduces the ground-truth IMU poses. --velocity-noise SIGMA_V,SIGMA_W adds noise.
 Every noise is white Gaussian, independent per axis and sample, from numpy's default_rng(--seed).
 
+Density:
+  --keep-every K   the tracks whose id is a multiple of K: a uniform thinning, every track as long
+                   as it was.
+  --max-tracks N   a sparse tracker: at most N tracks at once. A kept track continues for as long
+                   as its id is observed; on each frame the free places go to ids observed there
+                   and never kept before, drawn at random (after the noise, from the same --seed).
+                   Such a tracker keeps what lasts, so long tracks (far points, objects moving with
+                   the vehicle) weigh more than in a thinning. Applied after --keep-every.
+
 Examples:
   conditions ../shared/data/0027.npz out/c.npz --velocities clean --gt ../shared/data/gt/kitti_odometry_07.txt
   conditions ../shared/data/0027.npz out/c.npz --velocity-noise-scale 2 --keep-every 5 --seed 1
+  conditions ../shared/data/0027.npz out/c.npz --max-tracks 3 --seed 1
   tools/npz2lcm out/c.npz out/c.lcmlog
 """
 
@@ -70,7 +81,11 @@ def build_parser():
                         f"{GIVEN_LINEAR_STD} m/s, {GIVEN_ANGULAR_STD} rad/s")
     p.add_argument("--keep-every", type=int, default=1, metavar="K",
                    help="keep the tracks whose id j has j %% K == 0, remove the others (default 1: all)")
-    p.add_argument("--seed", type=int, default=0, metavar="S", help="noise seed (default 0)")
+    p.add_argument("--max-tracks", type=int, default=None, metavar="N",
+                   help="keep the tracks a sparse tracker of at most N tracks at once would have "
+                        "(see Density below)")
+    p.add_argument("--seed", type=int, default=0, metavar="S",
+                   help="seed of the noise and of --max-tracks' draws (default 0)")
     p.add_argument("--summary-json", metavar="FILE",
                    help="also write what was done and the observations per step as JSON")
     return p
@@ -109,6 +124,29 @@ def keep_every(features, k):
     return out
 
 
+def sparse_tracker(features, n, rng):
+    """Features (4, M, T) as a tracker of at most n tracks at once keeps them (a copy): a kept track
+    continues while its id is observed (every coordinate != -1); each frame's free places go to ids
+    observed there and never kept before, drawn from rng."""
+    if n < 1:
+        raise ToolError(f"--max-tracks must be >= 1, got {n}")
+    f = np.asarray(features, dtype=float)
+    observed = np.all(f != -1, axis=0)
+    kept = np.zeros_like(observed)
+    ever = np.zeros(observed.shape[0], dtype=bool)
+    current = np.zeros(0, dtype=np.int64)
+    for t in range(observed.shape[1]):
+        current = current[observed[current, t]]
+        if current.size < n:
+            new = rng.permutation(np.flatnonzero(observed[:, t] & ~ever))[:n - current.size]
+            ever[new] = True
+            current = np.concatenate([current, new])
+        kept[current, t] = True
+    out = np.array(f, copy=True)
+    out[:, ~kept] = -1.0
+    return out
+
+
 def observations_per_step(features):
     """Mean count of complete observations (all four coordinates != -1) per step."""
     f = np.asarray(features)
@@ -118,7 +156,7 @@ def observations_per_step(features):
 
 
 def make_condition(data, velocities="given", gt_w_T_cam=None, velocity_noise=None, noise_scale=None,
-                   keep=1, seed=0):
+                   keep=1, seed=0, max_tracks=None):
     """The modified arrays (a dict of every array of `data`) and a summary dict."""
     arrays = {k: np.asarray(data[k]) for k in data.files}
     ts = np.asarray(arrays["time_stamps"], dtype=float)
@@ -163,6 +201,9 @@ def make_condition(data, velocities="given", gt_w_T_cam=None, velocity_noise=Non
     arrays["rotational_velocity"] = np.asarray(ang, dtype=float)
     if keep != 1:
         arrays["features"] = keep_every(arrays["features"], keep)
+    if max_tracks is not None:
+        arrays["features"] = sparse_tracker(arrays["features"], max_tracks, rng)
+        summary["max_tracks"] = int(max_tracks)
     summary["steps"] = int(np.asarray(arrays["time_stamps"]).reshape(-1).shape[0])
     summary["observations_per_step"] = observations_per_step(arrays["features"])
     return arrays, summary
@@ -178,7 +219,7 @@ def main(argv=None):
                 raise ToolError("--gt is only used with --velocities clean")
             _, gt = read_kitti(args.gt)
         arrays, summary = make_condition(data, args.velocities, gt, args.velocity_noise,
-                                         args.velocity_noise_scale, args.keep_every, args.seed)
+                                         args.velocity_noise_scale, args.keep_every, args.seed, args.max_tracks)
         try:
             with open(args.output, "wb") as f:
                 np.savez(f, **arrays)
@@ -195,6 +236,7 @@ def main(argv=None):
     noise = summary["added_noise"]
     print(f"conditions: wrote {args.output}: {summary['steps']} steps, velocities {args.velocities}"
           f" + noise {noise[0]:.4g} m/s, {noise[1]:.4g} rad/s, every {args.keep_every} track(s) kept,"
+          + (f" at most {args.max_tracks} at once," if args.max_tracks is not None else "") +
           f" {summary['observations_per_step']:.1f} observations per step")
     return 0
 

@@ -9,6 +9,10 @@ Suites:
   conditions  0027 x {given, given x2, given x4, clean, clean + 0.1x, clean + 1x} x K {1,5,10,20}
               against KITTI 07; 0022 and 0034 as given x K {5,10,20} against the same build's
               full-density run (a pseudo-truth). Dead reckoning on every cell. (30 cells)
+  tracker     0027 x {given, clean, clean + 0.1x, clean + 1x} x a sparse tracker of at most N
+              {3,5,10} tracks at once (tools/conditions --max-tracks N) against KITTI 07; 0022 and
+              0034 as given x N {3,5,10} against their full-density run. Dead reckoning on every
+              cell. (18 cells)
   grid        0027 given x K {1,5,10,20}; {clean + 0.1x, clean + 1x, given x2} x K {1,5,20} x
               noise seeds {1,2,3}, against KITTI 07. (31 cells)
   sim         vislam-sim --steps 1100: --max-observations 70, seeds 1..6, and --realistic, seeds
@@ -43,8 +47,8 @@ from .trajio import read_tum
 from .vislam_config import read_config
 
 REPO_ROOT = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
-SUITES = ("conditions", "grid", "sim", "realistic", "starts", "sweep", "sweep_starts")
-DATA_SUITES = ("conditions", "grid", "starts", "sweep", "sweep_starts")
+SUITES = ("conditions", "tracker", "grid", "sim", "realistic", "starts", "sweep", "sweep_starts")
+DATA_SUITES = ("conditions", "tracker", "grid", "starts", "sweep", "sweep_starts")
 GT_0027 = os.path.join("gt", "kitti_odometry_07.txt")
 
 # 0027's velocity conditions, as tools/bench.sh --section conditions makes them:
@@ -59,6 +63,9 @@ VELOCITIES = {
 }
 CONDITION_KS = (1, 5, 10, 20)
 PSEUDO_TRUTH_KS = (5, 10, 20)
+# The sparse tracker's cells: a tracker that keeps its tracks, unlike one id in K, weighs long tracks more.
+TRACKER_VELOCITIES = ("given", "clean", "clean_n0.1", "clean_n1")
+TRACKER_NS = (3, 5, 10)
 GRID_GIVEN_KS = (1, 5, 10, 20)
 GRID_NOISY = ("clean_n0.1", "clean_n1", "given_x2")
 GRID_KS = (1, 5, 20)
@@ -199,12 +206,13 @@ class Plan:
         self.logs[name] = spec
         return name
 
-    def _0027(self, velocities, k, seed):
+    def _0027(self, velocities, k, seed, tracker=False):
+        """0027 with these velocities and one track id in k kept, or (tracker) at most k tracks at once."""
         gt = os.path.join(self.data_dir, GT_0027)
         args = [a.replace("{gt}", gt) for a in VELOCITIES[velocities][1]]
-        name = f"0027_{velocities}_K{k}_s{seed}"
+        name = f"0027_{velocities}_{'N' if tracker else 'K'}{k}_s{seed}"
         return self._npz_log(name, os.path.join(self.data_dir, "0027.npz"),
-                             args + ["--keep-every", str(k), "--seed", str(seed)])
+                             args + ["--max-tracks" if tracker else "--keep-every", str(k), "--seed", str(seed)])
 
     def _kitti_cell(self, suite, name, log, dr=False):
         self.cells.append(Cell(suite, name, log, "kitti", os.path.join(self.data_dir, GT_0027),
@@ -223,25 +231,36 @@ class Plan:
             self.notes.append(f"{suite}: skipped: missing {', '.join(missing)}")
         return ok
 
-    def add_conditions(self):
+    def _density_cells(self, suite, velocities, densities, pseudo_densities, tracker):
+        """0027 x velocities x densities against KITTI 07, and 0022 and 0034 as given x pseudo_densities
+        against their full-density run; dead reckoning on each. A density is one id in K kept, or
+        (tracker) at most N tracks at once."""
         ok, missing = self.has_0027()
         if ok:
-            for v in VELOCITIES:
-                for k in CONDITION_KS:
-                    log = self._0027(v, k, 1)
-                    self._kitti_cell("conditions", log, log, dr=True)
+            for v in velocities:
+                for k in densities:
+                    log = self._0027(v, k, 1, tracker)
+                    self._kitti_cell(suite, log, log, dr=True)
         else:
-            self.notes.append(f"conditions: 0027 cells skipped: missing {', '.join(missing)}")
+            self.notes.append(f"{suite}: 0027 cells skipped: missing {', '.join(missing)}")
         for drive in ("0022", "0034"):
             npz = os.path.join(self.data_dir, drive + ".npz")
             if not os.path.isfile(npz):
-                self.notes.append(f"conditions: {drive} cells skipped: missing {npz}")
+                self.notes.append(f"{suite}: {drive} cells skipped: missing {npz}")
                 continue
-            # bench.sh passes no --seed here: the given velocities get no noise, so none is drawn.
+            # bench.sh passes no --seed to the thinned ones: the given velocities get no noise, so none
+            # is drawn; the tracker's draws take seed 1, as on 0027.
             full = self._npz_log(f"{drive}_given_K1", npz, ["--keep-every", "1"])
-            for k in PSEUDO_TRUTH_KS:
-                log = self._npz_log(f"{drive}_given_K{k}", npz, ["--keep-every", str(k)])
-                self.cells.append(Cell("conditions", log, log, "pseudo", full, dr=True))
+            for k in pseudo_densities:
+                args = ["--max-tracks", str(k), "--seed", "1"] if tracker else ["--keep-every", str(k)]
+                log = self._npz_log(f"{drive}_given_{'N' if tracker else 'K'}{k}", npz, args)
+                self.cells.append(Cell(suite, log, log, "pseudo", full, dr=True))
+
+    def add_conditions(self):
+        self._density_cells("conditions", VELOCITIES, CONDITION_KS, PSEUDO_TRUTH_KS, tracker=False)
+
+    def add_tracker(self):
+        self._density_cells("tracker", TRACKER_VELOCITIES, TRACKER_NS, TRACKER_NS, tracker=True)
 
     def add_grid(self):
         if not self.need_0027("grid"):
@@ -653,7 +672,7 @@ def summarize(cells):
             continue
         s = {"cells": len(cs), "missing": sum(1 for c in cs if c.get("vislam_ate") is None)}
         values = [c.get("vislam_ate") for c in cs]
-        if suite == "conditions":
+        if suite in ("conditions", "tracker"):
             s["figure"] = "geometric mean of vislam ATE (m)"
             s["value"] = geometric_mean(values)
             both = [c for c in cs if c.get("vislam_ate") is not None and c.get("dr_ate") is not None]
@@ -685,7 +704,7 @@ def summarize(cells):
 
 def _summary_note(suite, s):
     notes = []
-    if suite == "conditions":
+    if suite in ("conditions", "tracker"):
         notes.append(f"vislam worse than dead reckoning in {s['worse_than_dr']} of {s['compared_with_dr']}")
     if suite == "realistic":
         notes.append(f"{s['summary_cells'] - s['summary_cells_missing']} of {s['summary_cells']} cell means")
