@@ -155,13 +155,12 @@ def test_sparse_tracker_keeps_its_tracks_and_fills_free_places(synthetic):
         started = np.zeros(M, dtype=bool)
         for t in range(T):
             if t > 0:
-                # a kept track continues while its id is observed
+                # a kept track continues while its id is observed, and once dropped never comes back
                 assert np.all(kept[kept[:, t - 1] & observed[:, t], t])
+                assert not np.any(kept[:, t] & started & ~kept[:, t - 1])
             # free places are filled while unkept, never-kept ids are there to take
             free_candidates = observed[:, t] & ~started & ~kept[:, t]
             assert counts[t] == n or not free_candidates.any()
-            # a track, once dropped, never comes back
-            assert not np.any(kept[:, t] & started & ~kept[:, t - 1]) if t > 0 else True
             started |= kept[:, t]
     a = sparse_tracker(feats, 3, np.random.default_rng(3))
     np.testing.assert_array_equal(a, sparse_tracker(feats, 3, np.random.default_rng(3)))
