@@ -124,6 +124,12 @@ class LogSpec:
     temps: dict = field(default_factory=dict)  # placeholder -> final path ("" = deleted afterwards)
 
 
+def _density(k, tracker):
+    """A density's name tag and tools/conditions options: one track id in k kept (Kk), or a sparse
+    tracker of at most k tracks at once (Nk)."""
+    return (f"N{k}", ["--max-tracks", str(k)]) if tracker else (f"K{k}", ["--keep-every", str(k)])
+
+
 @dataclass
 class Cell:
     """One measured cell: vislam (and dead reckoning when dr) on a log, against a truth."""
@@ -210,9 +216,9 @@ class Plan:
         """0027 with these velocities and one track id in k kept, or (tracker) at most k tracks at once."""
         gt = os.path.join(self.data_dir, GT_0027)
         args = [a.replace("{gt}", gt) for a in VELOCITIES[velocities][1]]
-        name = f"0027_{velocities}_{'N' if tracker else 'K'}{k}_s{seed}"
-        return self._npz_log(name, os.path.join(self.data_dir, "0027.npz"),
-                             args + ["--max-tracks" if tracker else "--keep-every", str(k), "--seed", str(seed)])
+        tag, density = _density(k, tracker)
+        return self._npz_log(f"0027_{velocities}_{tag}_s{seed}", os.path.join(self.data_dir, "0027.npz"),
+                             args + density + ["--seed", str(seed)])
 
     def _kitti_cell(self, suite, name, log, dr=False):
         self.cells.append(Cell(suite, name, log, "kitti", os.path.join(self.data_dir, GT_0027),
@@ -252,8 +258,8 @@ class Plan:
             # is drawn; the tracker's draws take seed 1, as on 0027.
             full = self._npz_log(f"{drive}_given_K1", npz, ["--keep-every", "1"])
             for k in pseudo_densities:
-                args = ["--max-tracks", str(k), "--seed", "1"] if tracker else ["--keep-every", str(k)]
-                log = self._npz_log(f"{drive}_given_{'N' if tracker else 'K'}{k}", npz, args)
+                tag, density = _density(k, tracker)
+                log = self._npz_log(f"{drive}_given_{tag}", npz, density + (["--seed", "1"] if tracker else []))
                 self.cells.append(Cell(suite, log, log, "pseudo", full, dr=True))
 
     def add_conditions(self):
