@@ -398,9 +398,10 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         result = VL_FRAME_TRUNCATED;
     }
 
-    /* Counted, and still used: after a repeated image the tracker's frames stay one
-     * step behind the clock, so the repeat keeps the vision's timeline coherent
-     * (skipping repeats measured worse on every density of the real drives). */
+    /* Counted, and still used: a repeated image is the tracker's detection frame. Its
+     * new tracks are seen where the vehicle is; its carried ones resume at points the
+     * step displaced (vl_window_repeat_noise). Skipping repeated frames measured worse
+     * on every density of the real drives. */
     const int repeated = vl_guard_frame_repeats_previous(e, frame, count);
     if (repeated) {
         e->counters.frames_repeated++;
