@@ -11,6 +11,11 @@
 #     the consumer with vislam's source tree as a subproject (add_subdirectory): it builds and runs,
 #     a consumer file with a #warning compiles, and the compile lines of the consumer's files carry
 #     none of vislam's flags (-Werror, -Wall, -Wextra, -march=native) while vislam's own keep them.
+#   test_install_consumer.sh core_only BUILD_DIR SOURCE_DIR
+#     vislam itself configured with -DVL_CORE_ONLY=ON where pkg-config cannot be found (so neither
+#     LCM nor libinih): it builds the core alone and installs the core, its headers, CMake package
+#     and pkg-config file, nothing of the messages'; the consumer finds it (find_package without
+#     components, pkg-config off there too) and runs.
 #
 # CC and CXX (the main build's compilers, set by CTest) compile the consumers.
 set -uo pipefail
@@ -130,8 +135,42 @@ for e in json.load(open(sys.argv[1])):
   check "core/src/vl_estimator.c keeps vislam's -Wall -Wextra -march=native" \
     test -n "$(grep -- '-Wall' <<<"$line" | grep -- '-Wextra' | grep -- '-march=native')"
   check "core/src/vl_estimator.c: no -Werror by default as a subproject" test -z "$(grep -o -- '-Werror' <<<"$line")"
+elif [ "$MODE" = core_only ]; then
+  P=$TMP/prefix
+  NO_PC=-DCMAKE_DISABLE_FIND_PACKAGE_PkgConfig=ON
+  cmake -S "$SRC" -B "$TMP/core" -DCMAKE_BUILD_TYPE=Release -DVL_CORE_ONLY=ON "$NO_PC" \
+    -DVL_MAX_LANDMARKS="$N" >"$TMP/core.log" 2>&1 &&
+    cmake --build "$TMP/core" -j 2 >>"$TMP/core.log" 2>&1 &&
+    cmake --install "$TMP/core" --prefix "$P" >>"$TMP/core.log" 2>&1
+  rc=$?
+  check "VL_CORE_ONLY without pkg-config (no LCM, no libinih): configures, builds, installs" eq $rc 0
+  [ "$rc" -eq 0 ] || cat "$TMP/core.log"
+  built=$(find "$TMP/core" -name '*.a' -printf '%f\n' | sort | tr '\n' ' ')
+  check "built the core alone (no checked copy, no message types, no programs)" \
+    eq "$built$(find "$TMP/core" -path '*/bin/*' -type f | head -1)" "libvislam_core.a "
+  LIBDIR=$(dirname "$(find "$P" -name libvislam_core.a)")
+  missing=""
+  for f in include/vislam/vislam.h include/vislam/vl_config_schema.h; do
+    [ -f "$P/$f" ] || missing="$missing $f"
+  done
+  for f in cmake/vislam/vislamConfig.cmake pkgconfig/vislam.pc; do
+    [ -f "$LIBDIR/$f" ] || missing="$missing $f"
+  done
+  check "installed: the headers, the core, its CMake package and pkg-config file" eq "$missing" ""
+  extra=$(cd "$P" && find . -name '*lcm*' -o -name share -o -path '*/bin*' | tr '\n' ' ')
+  check "installed nothing of the messages' and no programs" eq "$extra" ""
+  cmake -S "$CONSUMER" -B "$TMP/find" -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$P" \
+    -DVISLAM_CONSUMER_LCM=OFF "$NO_PC" >"$TMP/find.log" 2>&1 &&
+    cmake --build "$TMP/find" -j 2 >>"$TMP/find.log" 2>&1
+  rc=$?
+  check "find_package(vislam) of the core-only install: the consumers configure and build" eq $rc 0
+  [ "$rc" -eq 0 ] || cat "$TMP/find.log"
+  for prog in consumer_c consumer_cxx; do
+    run "$prog" "$TMP/find/$prog"
+    check "core only: $prog runs and checks its result" eq "$RUN_RC" 0
+  done
 else
-  echo "usage: $0 install|subproject BUILD_DIR SOURCE_DIR" >&2
+  echo "usage: $0 install|subproject|core_only BUILD_DIR SOURCE_DIR" >&2
   exit 2
 fi
 
