@@ -521,7 +521,7 @@ section_timing() {
         --callgrind-out-file="$d/callgrind/callgrind.out" \
         "$vb/bin/vislam-run" "$cglog" --trajectory "$d/callgrind.tum" --quiet
       say "On $cgname, portable build (VL_NATIVE=OFF: x86-64 baseline, SSE2; valgrind cannot run the"
-      say "native AVX-512 build), inclusive Ir of the calls from main (log reading and output excluded):"
+      say "native AVX-512 build), inclusive Ir of the calls to the core's two entry points (log reading and output excluded):"
       say ""
       table callgrind "$d/callgrind" --json "$d/callgrind.json"
       rm -rf "$d/callgrind" # about 50 MB of per-frame dumps; the totals are in callgrind.json

@@ -185,7 +185,8 @@ _NAME_RE = re.compile(r"^(c?fn)=\((\d+)\)(?: (.*))?$")
 
 
 def _parse_dump(path, names):
-    """Inclusive Ir of the calls main -> vl_update and main -> vl_propagate in one dump."""
+    """Inclusive Ir of the calls to vl_update and vl_propagate in one dump, from whichever caller
+    (the programs call them through vl_session) other than the two themselves."""
     cost = {"vl_update": 0, "vl_propagate": 0}
     calls = {"vl_update": 0, "vl_propagate": 0}
     fn = None
@@ -210,7 +211,7 @@ def _parse_dump(path, names):
                     fn = name
                     pending = None
                 else:
-                    pending = name if (fn == "main" and name in cost) else None
+                    pending = name if (name in cost and fn not in cost) else None
                 continue
             if line.startswith("calls="):
                 if pending:
