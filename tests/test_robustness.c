@@ -731,6 +731,10 @@ void test_imu_back_after_a_silence_without_frames_is_not_integrated(void)
     vl_pose_t p;
     get_pose(&est, &p);
     TEST_ASSERT_DOUBLE_WITHIN(1e-6, 5.0, p.position[0]); /* 0.5 s at 10 m/s, not 30 m */
+    /* ... but the covariance takes it: on each axis at least the speed it had, over the 2.5 s */
+    for (int i = 0; i < 3; ++i) {
+        TEST_ASSERT_TRUE(p.covariance[7 * i] > (10.0 * 2.5) * (10.0 * 2.5));
+    }
     TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->imu_silences);
     TEST_ASSERT_EQUAL_UINT64(0, vl_get_counters(&est)->frames_imu_silent);
 }

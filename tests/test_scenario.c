@@ -2,6 +2,7 @@
  * The estimator on synthetic drives with known truth (tools/sim): consistency
  * (NEES), accuracy against dead reckoning, the window bound and determinism.
  */
+#include <inttypes.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -127,6 +128,22 @@ static void scenario_off_by(uint64_t noise_seed, uint32_t steps, double px, doub
     }
 }
 
+/* The pose's error in the API's convention, T_true = T_hat exp(xi); returns the squared position error, m^2. */
+static double pose_error(const vl_pose_t *pose, const double R_true[9], const double p_true[3], double xi[6])
+{
+    double Rt[9], dR[9], dp[3], d[3];
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            Rt[3 * i + j] = pose->rotation[3 * j + i];
+        }
+        d[i] = p_true[i] - pose->position[i];
+    }
+    vl_matmul(Rt, R_true, dR, 3, 3, 3);
+    vl_matmul(Rt, d, dp, 3, 3, 1);
+    vl_se3_log(dR, dp, xi);
+    return d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+}
+
 static void run(const vl_sim_config_t *sc, const vl_config_t *cfg_in, run_result_t *res)
 {
     memset(res, 0, sizeof(*res));
@@ -151,18 +168,8 @@ static void run(const vl_sim_config_t *sc, const vl_config_t *cfg_in, run_result
         res->checksum = mix(res->checksum, pose.position, sizeof(pose.position));
         res->checksum = mix(res->checksum, pose.covariance, sizeof(pose.covariance));
 
-        /* error in the API's convention: T_true = T_hat exp(xi) */
-        double Rt[9], dR[9], dp[3], d[3], xi[6];
-        for (int i = 0; i < 3; ++i) {
-            for (int j = 0; j < 3; ++j) {
-                Rt[3 * i + j] = pose.rotation[3 * j + i];
-            }
-            d[i] = p_true[i] - pose.position[i];
-        }
-        vl_matmul(Rt, R_true, dR, 3, 3, 3);
-        vl_matmul(Rt, d, dp, 3, 3, 1);
-        vl_se3_log(dR, dp, xi);
-        const double e2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        double xi[6];
+        const double e2 = pose_error(&pose, R_true, p_true, xi);
         sq += e2;
         res->final_position_error = sqrt(e2);
         if (steps < NEES_STEPS) {
@@ -287,6 +294,61 @@ void test_replay_is_bit_identical(void)
     run(&sc, &cfg, &a);
     run(&sc, &cfg, &b);
     TEST_ASSERT_EQUAL_HEX64(a.checksum, b.checksum);
+}
+
+/*
+ * The IMU falls silent for 5 s in the middle of a drive while the frames go on. Past
+ * max_imu_silence no velocity moves the pose, the covariance takes the unknown motion,
+ * and the frames carry the pose against the window: at the end of the silence the
+ * error is a small part of the distance driven unintegrated, and the covariance
+ * covers it; the frames are used, counted and flagged, and the flag clears when the
+ * IMU returns.
+ */
+void test_frames_carry_the_pose_through_an_imu_silence(void)
+{
+    enum { FROM = 100, TO = 150 }; /* the steps without an IMU sample */
+    vl_sim_config_t sc;
+    vl_config_t cfg;
+    scenario(5, 200, 0.5, &sc, &cfg);
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, &sc));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t imu;
+    double R_true[9], p_true[3], p_trusted[3] = {0, 0, 0}, xi[6];
+    int64_t last_imu = 0;
+    uint64_t silent_frames = 0;
+    double error = -1.0, nees = -1.0, unintegrated = 0.0;
+    for (uint32_t k = 0; vl_sim_step(&sim, &imu, &frame, R_true, p_true) == 0; ++k) {
+        if (k < FROM || k >= TO) {
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &imu));
+            last_imu = imu.utime;
+        }
+        const int silent = frame.utime - last_imu > (int64_t)(cfg.max_imu_silence * 1e6);
+        if (silent && silent_frames == 0) {
+            memcpy(p_trusted, p_true, sizeof(p_trusted)); /* about where the held velocity ran out */
+        }
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+        TEST_ASSERT_EQUAL_UINT32(silent ? VL_STATE_IMU_SILENT : 0u, vl_get_state_flags(&est));
+        silent_frames += (uint64_t)silent;
+        if (k == TO - 1) {
+            vl_pose_t pose;
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+            error = sqrt(pose_error(&pose, R_true, p_true, xi));
+            nees = mahalanobis6(pose.covariance, xi);
+            const double d[3] = {p_true[0] - p_trusted[0], p_true[1] - p_trusted[1], p_true[2] - p_trusted[2]};
+            unintegrated = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        }
+    }
+    const vl_counters_t *c = vl_get_counters(&est);
+    printf("IMU silence of %d steps: %" PRIu64 " frames on vision alone, %.1f m driven unintegrated, "
+           "error %.3f m at its end (NEES %.2f)\n",
+           TO - FROM, silent_frames, unintegrated, error, nees);
+    TEST_ASSERT_TRUE(silent_frames >= 40);
+    TEST_ASSERT_EQUAL_UINT64(silent_frames, c->frames_imu_silent);
+    TEST_ASSERT_EQUAL_UINT64(1, c->imu_silences);
+    TEST_ASSERT_EQUAL_UINT64(0, c->frames_rejected);
+    TEST_ASSERT_TRUE(unintegrated > 20.0);
+    TEST_ASSERT_TRUE(error < 0.05 * unintegrated);
+    TEST_ASSERT_TRUE(nees >= 0.0 && nees < 22.46); /* chi-square, 6 dof, 99.9 % */
 }
 
 /* Drives the simulator with the estimator configured by cfg; returns the adapted noise. */
@@ -586,5 +648,6 @@ int main(void)
     RUN_TEST(test_second_sight_breaks_tracks_on_moving_objects);
     RUN_TEST(test_realistic_sparse_drives_with_noisy_velocities_do_no_harm);
     RUN_TEST(test_realistic_sparsest_clean_drive_does_no_harm);
+    RUN_TEST(test_frames_carry_the_pose_through_an_imu_silence);
     return UNITY_END();
 }

@@ -248,14 +248,15 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
     }
     if (e->have_imu) {
         if (vl_guard_imu_silent_at(e, imu->utime)) {
-            /* The held velocity is trusted for max_imu_silence; the motion after that
-             * is unknown, so the clock jumps over it rather than invent it. */
+            /* The held velocity is trusted for max_imu_silence; after that no stale
+             * velocity is integrated: in slam mode the frames' own motion carries on,
+             * and the covariance takes what is not known. */
             if (!e->imu_silent) {
                 e->counters.imu_silences++;
             }
-            vl_log_msg(e, VL_LOG_WARN, imu->utime, "IMU back after a silence; the motion during it is not propagated");
-            vl_predict_to(e, e->last_imu_utime + vl_limit_us(e->cfg.max_imu_silence));
-            e->state_utime = imu->utime;
+            vl_log_msg(e, VL_LOG_WARN, imu->utime,
+                       "IMU back after a silence; no stale velocity integrated, the covariance took the motion");
+            vl_predict_silence_to(e, imu->utime);
         } else {
             vl_predict_to_sample(e, imu);
         }
@@ -296,7 +297,9 @@ static vl_status_t update_and_adapt(vl_estimator_t *e, const vl_la_obs_t *rows, 
     vl_work_update(e, vl_state_dim(e), used, adapt, used + (k - partitioned));
     if (adapt) {
         vl_noise_adapt_pixel(e, rows, used, partitioned, k, count);
-        vl_noise_adapt_velocity(e, prior_pose, used);
+        if (!e->unknown_motion) { /* across an IMU silence the correction is not the sensor's noise */
+            vl_noise_adapt_velocity(e, prior_pose, used);
+        }
     }
     return st;
 }
@@ -320,14 +323,16 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     }
     const uint32_t contradicting = vl_outliers_gate(e, rows, k);
     vl_work_gate(e, k);
-    if (vl_outliers_reassociated(e, k, contradicting)) {
+    /* Across an IMU silence the predicted motion is a guess: a frame that contradicts it
+     * says the guess was wrong, and RANSAC finds what the frame does say. */
+    if (!e->unknown_motion && vl_outliers_reassociated(e, k, contradicting)) {
         /* Most tracks contradict the state at once: the tracker re-associated its
          * ids (it does so when it detects new features). None of these
          * observations is trusted; every observed landmark restarts. */
         e->counters.frames_reassociated++;
         e->counters.observations_gated += k;
         vl_outliers_break_all(e, k);
-        if (e->cfg.adaptive_noise && ++e->reassociated_run >= VL_NOISE_CONTRADICTION_RUN) {
+        if (e->cfg.adaptive_noise && !e->unknown_motion && ++e->reassociated_run >= VL_NOISE_CONTRADICTION_RUN) {
             vl_noise_widen(e);
         }
         return VL_OK;
@@ -358,6 +363,26 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     return vl_update_apply(e, rows, rescued);
 }
 
+/* The body-frame velocity from the previous frame's pose to this one's, over dt seconds. */
+static void note_frame_velocity(vl_estimator_t *e, double dt, int had_frame)
+{
+    e->have_frame_velocity = 0;
+    if (!had_frame || !(dt > 0.0)) {
+        return;
+    }
+    double dR[9], d[3], t[3], xi[6];
+    vl_matmul_at(e->frame_R, e->R, dR, 3, 3, 3);
+    for (int i = 0; i < 3; ++i) {
+        d[i] = e->p[i] - e->frame_p[i];
+    }
+    vl_matmul_at(e->frame_R, d, t, 3, 3, 1);
+    vl_se3_log(dR, t, xi);
+    for (int i = 0; i < 6; ++i) {
+        e->frame_velocity[i] = xi[i] / dt;
+    }
+    e->have_frame_velocity = 1;
+}
+
 vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
 {
     if (e == NULL || frame == NULL) {
@@ -377,15 +402,23 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         return refuse_time(e, VL_INPUT_FRAME, frame->utime, time_st);
     }
     vl_guard_time_passed(e, frame->utime);
-    if (vl_guard_imu_silent_at(e, frame->utime)) {
-        e->counters.frames_rejected++;
+    /* Past max_imu_silence no velocity moves the pose: in slam mode the frames carry it
+     * (their landmarks against the widened covariance); the other modes have nothing
+     * else to move it with, and refuse them. Degraded either way until the IMU returns. */
+    const int silent = vl_guard_imu_silent_at(e, frame->utime);
+    if (silent) {
         e->counters.frames_imu_silent++;
         if (!e->imu_silent) {
             e->imu_silent = 1;
             e->counters.imu_silences++;
-            vl_log_msg(e, VL_LOG_WARN, frame->utime, "IMU silent longer than max_imu_silence; frames refused");
+            vl_log_msg(e, VL_LOG_WARN, frame->utime,
+                       e->cfg.mode == VL_MODE_SLAM ? "IMU silent longer than max_imu_silence; the frames carry the pose"
+                                                   : "IMU silent longer than max_imu_silence; frames refused");
         }
-        return VL_ERR_IMU_SILENT;
+        if (e->cfg.mode != VL_MODE_SLAM) {
+            e->counters.frames_rejected++;
+            return VL_ERR_IMU_SILENT;
+        }
     }
     vl_status_t result = VL_OK;
     uint32_t count = frame->count;
@@ -409,7 +442,11 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     const int had_frame = e->have_frame;
 
     /* 1. Predict to the frame; the steps since the last frame reach the whole of P. */
-    vl_predict_to(e, frame->utime);
+    if (silent) {
+        vl_predict_silence_to(e, frame->utime);
+    } else {
+        vl_predict_to(e, frame->utime);
+    }
     vl_predict_settle(e);
     /* A sparse frame's velocity noise is matched on its tracks' two views before the update;
      * a repeated image, or one after it, shows one step of motion where the clock shows two. */
@@ -419,7 +456,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     memset(contradicted, 0, count);
     if (e->cfg.adaptive_noise && e->cfg.mode == VL_MODE_SLAM) {
         vl_noise_observe_stereo_rows(e, frame, count);
-        if (had_frame && !repeated && !e->prev_frame_repeated) {
+        if (had_frame && !repeated && !e->prev_frame_repeated && !e->unknown_motion) {
             e->velocity_matched = vl_noise_adapt_velocity_two_view(e, frame, count, contradicted);
         }
     }
@@ -435,6 +472,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     e->frame_index++;
     e->counters.frames_accepted++;
     if (e->cfg.mode == VL_MODE_IMU_ONLY) {
+        e->unknown_motion = 0;
         return guard_divergence(e, VL_INPUT_FRAME, frame->utime, result);
     }
 
@@ -476,8 +514,10 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     vl_window_retire(e);
     /* 5. Admissions, best first, including the restarts of broken tracks. */
     vl_window_admit(e, frame, &candidates);
+    note_frame_velocity(e, frame_dt, had_frame);
     memcpy(e->frame_R, e->R, sizeof(e->R));
     memcpy(e->frame_p, e->p, sizeof(e->p));
+    e->unknown_motion = 0; /* the frame's adaptation has seen it */
     vl_work_window(e, vl_state_dim(e), count, (uint32_t)(e->counters.landmarks_marginalized - marginalized_before),
                    (uint32_t)(e->counters.landmarks_initialized - admitted_before));
     return guard_divergence(e, VL_INPUT_FRAME, frame->utime, result);

@@ -97,6 +97,17 @@ static inline void vl_track_break(vl_estimator_t *e, uint32_t slot, uint32_t obs
     e->work_broken[e->num_broken++] = obs;
 }
 
+/**
+ * The velocity variance per axis, linear (m/s)^2 and angular (rad/s)^2, that moved the
+ * pose since the last frame: the sensor's, or the unknown motion's across an IMU
+ * silence (vl_predict_silence_to), which the checks of a track's motion then allow for.
+ */
+static inline void vl_step_velocity_var(const vl_estimator_t *e, double *linear, double *angular)
+{
+    *linear = e->unknown_motion ? e->unknown_motion_var[0] : e->linear_velocity_var;
+    *angular = e->unknown_motion ? e->unknown_motion_var[1] : e->angular_velocity_var;
+}
+
 /** Hands a fixed message to the injected logger, if any. */
 static inline void vl_log_msg(const vl_estimator_t *e, vl_log_level_t level, int64_t utime, const char *msg)
 {

@@ -7,6 +7,7 @@
  */
 #include "vl_predict.h"
 
+#include <math.h>
 #include <string.h>
 
 #include "vl_estimator_internal.h"
@@ -15,9 +16,42 @@
 #include "vl_work.h"
 
 /*
- * Moves the state to utime with the velocity u = (lin, ang) over the interval.
- * noise_share scales the input noise: the variance of u in units of one
- * sample's variance (1 for a held sample).
+ * T <- T exp(xi), xi = tau u, with the input's noise (variance per axis of u)
+ * and, when offset_var is not NULL, the offsets' error coupled in and walking.
+ * Input noise n and offset error db both act as u -> u - n - db, which moves the
+ * pose error by G (n + db) with G = -tau Ad(T_new) J_r(tau u), and each landmark
+ * error by hat(l_i) times its rotation rows (the world turns under the
+ * landmarks, which stay put).
+ */
+static void advance(vl_estimator_t *e, int64_t utime, double tau, const double xi[6], const double noise_var[6],
+                    const double offset_var[6])
+{
+    double dR[9], dp[3], Rn[9], t[3];
+    vl_se3_exp(xi, dR, dp);
+    vl_matmul(e->R, dR, Rn, 3, 3, 3);
+    vl_matmul(e->R, dp, t, 3, 3, 1);
+    memcpy(e->R, Rn, sizeof(Rn));
+    vl_so3_normalize(e->R);
+    for (int i = 0; i < 3; ++i) {
+        e->p[i] += t[i];
+    }
+    e->state_utime = utime;
+
+    double Ad[36], Jr[36], Gp[36];
+    vl_se3_adjoint(e->R, e->p, Ad);
+    vl_se3_right_jacobian(xi, Jr);
+    vl_matmul(Ad, Jr, Gp, 6, 6, 6);
+    for (int i = 0; i < 36; ++i) {
+        Gp[i] *= -tau;
+    }
+    vl_work_predict(e, offset_var != NULL);
+    vl_predict_defer(e, Gp, noise_var, offset_var);
+}
+
+/*
+ * Moves the state to utime with the velocity u = (lin, ang) over the interval,
+ * less the estimated offsets. noise_share scales the input noise: the variance
+ * of u in units of one sample's variance (1 for a held sample).
  */
 static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], const double ang[3], double noise_share)
 {
@@ -29,39 +63,11 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
         e->counters.time_gaps++;
         vl_log_msg(e, VL_LOG_WARN, utime, "long gap between inputs; propagating across it");
     }
-
-    double xi[6], dR[9], dp[3];
+    double xi[6];
     for (int i = 0; i < 3; ++i) {
         xi[i] = tau * (lin[i] - e->offset_linear[i]);
         xi[3 + i] = tau * (ang[i] - e->offset_angular[i]);
     }
-    vl_se3_exp(xi, dR, dp);
-
-    /* T <- T exp(tau u) */
-    double Rn[9], t[3];
-    vl_matmul(e->R, dR, Rn, 3, 3, 3);
-    vl_matmul(e->R, dp, t, 3, 3, 1);
-    memcpy(e->R, Rn, sizeof(Rn));
-    vl_so3_normalize(e->R);
-    for (int i = 0; i < 3; ++i) {
-        e->p[i] += t[i];
-    }
-    e->state_utime = utime;
-
-    /*
-     * Input noise n and offset error db both act as u -> u - n - db, which moves
-     * the pose error by G (n + db) with G = -tau Ad(T_new) J_r(tau u), and each
-     * landmark error by hat(l_i) times its rotation rows (the world turns under
-     * the landmarks, which stay put).
-     */
-    double Ad[36], Jr[36], Gp[36];
-    vl_se3_adjoint(e->R, e->p, Ad);
-    vl_se3_right_jacobian(xi, Jr);
-    vl_matmul(Ad, Jr, Gp, 6, 6, 6);
-    for (int i = 0; i < 36; ++i) {
-        Gp[i] *= -tau;
-    }
-    vl_work_predict(e, e->cfg.estimate_input_offsets);
     const double sv2 = e->linear_velocity_var * noise_share;
     const double sw2 = e->angular_velocity_var * noise_share;
     const double noise_var[6] = {sv2, sv2, sv2, sw2, sw2, sw2};
@@ -70,7 +76,7 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
     const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
     const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
     const double offset_var[6] = {qv, qv, qv, qw, qw, qw};
-    vl_predict_defer(e, Gp, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL);
+    advance(e, utime, tau, xi, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL);
 }
 
 /*
@@ -176,6 +182,47 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime)
     if (!skip_untrusted(e, utime)) {
         predict_with(e, utime, e->held_linear, e->held_angular, 1.0);
     }
+}
+
+/*
+ * Past max_imu_silence no sample says how the vehicle moves, and a stale one is
+ * never integrated. The frames do: the motion between the last two (their
+ * updated poses, e->frame_velocity) carries on at constant velocity, with three
+ * times the sensor's noise per axis for what that guess misses (a change of
+ * speed, the poses' own error), and the turn rate itself on the angular axes (a
+ * turn may end within a frame). Without that motion (before two frames, or
+ * outside slam mode, where the frames do not move the pose) the mean stays, and
+ * the noise also covers the held sample's speed and turn rate. No input is
+ * integrated, so the offsets neither couple in nor walk (seconds of their walk
+ * are nothing beside their prior).
+ */
+static double norm3(const double v[3])
+{
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
+
+void vl_predict_silence_to(vl_estimator_t *e, int64_t utime)
+{
+    vl_predict_to(e, e->last_imu_utime + vl_limit_us(e->cfg.max_imu_silence));
+    const double tau = (double)vl_utime_diff(utime, e->state_utime) * 1e-6;
+    if (tau <= 0.0) {
+        return;
+    }
+    double v = 3.0 * sqrt(e->linear_velocity_var), w = 3.0 * sqrt(e->angular_velocity_var), xi[6] = {0};
+    if (e->have_frame_velocity && e->cfg.mode == VL_MODE_SLAM) { /* elsewhere the poses are the prediction's */
+        for (int i = 0; i < 6; ++i) {
+            xi[i] = tau * e->frame_velocity[i];
+        }
+        w += norm3(&e->frame_velocity[3]); /* a turn may end at once */
+    } else if (e->held_trusted) {
+        v += norm3(e->held_linear);
+        w += norm3(e->held_angular);
+    }
+    const double noise_var[6] = {v * v, v * v, v * v, w * w, w * w, w * w};
+    advance(e, utime, tau, xi, noise_var, NULL);
+    e->unknown_motion = 1;
+    e->unknown_motion_var[0] = v * v;
+    e->unknown_motion_var[1] = w * w;
 }
 
 /*

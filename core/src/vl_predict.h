@@ -24,6 +24,16 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime);
 void vl_predict_to_sample(vl_estimator_t *e, const vl_imu_sample_t *imu);
 
 /**
+ * Propagates the state to utime across an IMU silence: with the held
+ * velocities up to max_imu_silence after the last sample (vl_predict_to), and
+ * from there at the velocity between the last two frames (e->frame_velocity;
+ * none before two frames), with 3 times the sensor's noise stds per axis (and,
+ * without that velocity, the held sample's speed in them), so that the frames
+ * carry the pose. Sets e->unknown_motion and its variances.
+ */
+void vl_predict_silence_to(vl_estimator_t *e, int64_t utime);
+
+/**
  * One prediction step's covariance: P's core block and the deferred
  * accumulators (e->deferred) move by the step with pose input Jacobian Gp
  * (6 x 6 row-major: G = -tau Ad(T) J_r); the landmark rows wait for

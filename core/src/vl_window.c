@@ -289,8 +289,10 @@ static int track_consistent(const vl_estimator_t *e, const vl_pending_track_t *t
     if (vl_camera_project_world(e, t->point, y_pred, Hp, Hx) != 0) {
         return 0;
     }
-    const double sv2 = e->linear_velocity_var * dt * dt;
-    const double sw2 = e->angular_velocity_var * dt * dt;
+    double sv2, sw2;
+    vl_step_velocity_var(e, &sv2, &sw2);
+    sv2 *= dt * dt;
+    sw2 *= dt * dt;
     double nv[3];
     vl_stereo_noise_var(e->pixel_var, nv);
     double S[9], tmp[9], HQ[18];
@@ -342,7 +344,9 @@ static int second_sight_consistent(const vl_estimator_t *e, uint32_t slot, const
         d[i] = pw[i] - l[i];
         lever2 += (pw[i] - e->p[i]) * (pw[i] - e->p[i]);
     }
-    const double motion = (e->linear_velocity_var + lever2 * e->angular_velocity_var) * dt * dt;
+    double lin_var, ang_var;
+    vl_step_velocity_var(e, &lin_var, &ang_var);
+    const double motion = (lin_var + lever2 * ang_var) * dt * dt;
     for (int i = 0; i < 3; ++i) {
         S[4 * i] += motion;
     }

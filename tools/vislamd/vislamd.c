@@ -1105,7 +1105,7 @@ static void print_summary(const daemon_t *d)
     fprintf(stderr,
             "  robustness: time refused %" PRIu64 " (jumps %" PRIu64 "), timeline changes %" PRIu64
             ", divergence resets %" PRIu64 ", implausible imu %" PRIu64 " observations %" PRIu64
-            ", frames refused for IMU silence %" PRIu64 ", poses withheld %" PRIu64 "\n",
+            ", frames during IMU silence %" PRIu64 ", poses withheld %" PRIu64 "\n",
             n->time_refused, c->time_jumps, c->timeline_changes, c->divergence_resets, c->imu_implausible,
             c->observations_implausible, c->frames_imu_silent, n->poses_withheld);
     if (d->opt.supersede_imu_poses) {

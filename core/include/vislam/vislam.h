@@ -92,9 +92,9 @@ typedef enum {
     VL_ERR_TIME_JUMP = -9,             /**< Input time more than max_time_jump away from the estimator's
                                            clock, ahead or behind; refused, the clock did not move. */
     VL_ERR_IMPLAUSIBLE = -10,          /**< IMU sample beyond max_speed or max_rotation_rate; refused. */
-    VL_ERR_IMU_SILENT = -11,           /**< Frame more than max_imu_silence after the last IMU sample:
-                                           not propagated with a stale velocity, refused; the
-                                           estimator is degraded until the IMU returns. */
+    VL_ERR_IMU_SILENT = -11,           /**< Frame more than max_imu_silence after the last IMU sample
+                                           in a mode other than slam (where the frames carry the pose):
+                                           refused; the estimator is degraded until the IMU returns. */
     VL_ERR_ABI_MISMATCH = -12          /**< vl_init: the caller was compiled with other capacities
                                            (VL_MAX_LANDMARKS, VL_MAX_FRAME_FEATURES) or another
                                            vislam.h than the library; the estimator was not touched. */
@@ -231,7 +231,7 @@ typedef struct {
     X(uint64_t, imu_accepted, "IMU samples used")                                                                   \
     X(uint64_t, imu_rejected, "IMU samples refused (non-finite, time order, time jump, implausible)")               \
     X(uint64_t, frames_accepted, "frames used")                                                                     \
-    X(uint64_t, frames_rejected, "frames refused (time order, time jump, not ready, IMU silent)")                   \
+    X(uint64_t, frames_rejected, "frames refused (time order, time jump, not ready, IMU silent outside slam mode)") \
     X(uint64_t, frames_truncated, "frames over VL_MAX_FRAME_FEATURES")                                              \
     X(uint64_t, observations_received, "observations in accepted frames, before truncation")                        \
     X(uint64_t, observations_truncated, "observations dropped by truncation")                                       \
@@ -262,7 +262,8 @@ typedef struct {
     X(uint64_t, imu_implausible, "IMU samples beyond max_speed or max_rotation_rate")                               \
     X(uint64_t, observations_implausible, "pixels outside the image (with margin) or disparity over max_disparity") \
     X(uint64_t, imu_silences, "times the IMU fell silent for longer than max_imu_silence")                          \
-    X(uint64_t, frames_imu_silent, "frames refused because the IMU was silent")                                     \
+    X(uint64_t, frames_imu_silent,                                                                                  \
+      "frames past max_imu_silence: carried on vision alone in slam mode, refused in the others")                   \
     X(uint32_t, window_peak, "most landmarks ever in the window")
 
 /** Running counters; all monotonic since vl_init. One member per VL_COUNTERS row (meaning there). */
@@ -370,10 +371,12 @@ typedef struct {
     int64_t last_imu_utime;   /**< us */
     int64_t last_frame_utime; /**< us */
     uint64_t frame_index;
-    int have_frame;            /**< a frame was accepted on this timeline */
-    int64_t clock_utime;       /**< us, latest input time that passed the time policy */
-    int imu_silent;            /**< the IMU has been silent longer than max_imu_silence */
-    uint32_t failed_frame_run; /**< consecutive frames whose update failed (divergence guard) */
+    int have_frame;      /**< a frame was accepted on this timeline */
+    int64_t clock_utime; /**< us, latest input time that passed the time policy */
+    int imu_silent;      /**< the IMU has been silent longer than max_imu_silence */
+    int unknown_motion;  /**< motion past max_imu_silence widened P since the last frame (vl_predict_silence_to) */
+    double unknown_motion_var[2]; /**< its velocity variance per axis: linear (m/s)^2, angular (rad/s)^2 */
+    uint32_t failed_frame_run;    /**< consecutive frames whose update failed (divergence guard) */
     /** A candidate new timeline: consecutive time-refused inputs that follow one another. */
     uint32_t timeline_count;
     int64_t timeline_last_utime;       /**< us, latest input of the candidate */
@@ -414,6 +417,10 @@ typedef struct {
     /** The pose after the previous accepted frame: the step to a repeated image (repeat_anchor_noise). */
     double frame_R[9]; /**< world-from-IMU rotation, row-major */
     double frame_p[3]; /**< m */
+    /** The body-frame velocity between the last two accepted frames' poses: what carries the pose
+     * across an IMU silence (vl_predict_silence_to). */
+    double frame_velocity[6]; /**< linear m/s, angular rad/s */
+    int have_frame_velocity;
 
     /** The pose after the last input that passed the divergence check: where a divergence re-initializes. */
     double sound_R[9];  /**< world-from-IMU rotation, row-major */

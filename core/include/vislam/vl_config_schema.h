@@ -196,9 +196,10 @@ typedef enum {
       "1 m away on the KITTI rig, fx b = 380 px m).") \
     X("limits", "max_imu_silence", max_imu_silence, DOUBLE, 0.5, 0.0, VL_MAX_TIME_LIMIT, 1, "s", \
       "An IMU velocity is used for at most this long after its sample (0.5 s: five missed " \
-      "samples at 10 Hz). A frame later than that is refused (frames_imu_silent) and the " \
-      "estimator reports itself degraded until the IMU returns; the motion during the silence " \
-      "is not propagated.") \
+      "samples at 10 Hz). Past that the estimator reports itself degraded until the IMU " \
+      "returns, no stale velocity is integrated, and the covariance takes the unknown motion; " \
+      "in slam mode the frames carry the pose meanwhile (frames_imu_silent: at the velocity " \
+      "between the last two frames, corrected by each), the other modes refuse them.") \
     X("limits", "divergence_frames", divergence_frames, UINT32, 20, 0, UINT32_MAX, 0, "", \
       "In slam mode, this many frames in a row whose update failed (refused, or most " \
       "observations contradicting the state) mean the estimator diverged: it re-initializes " \
