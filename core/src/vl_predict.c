@@ -184,6 +184,12 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime)
     }
 }
 
+/* Euclidean norm of a 3-vector. */
+static double norm3(const double v[3])
+{
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
+
 /*
  * Past max_imu_silence no sample says how the vehicle moves, and a stale one is
  * never integrated. The frames do: the motion between the last two (their
@@ -196,11 +202,6 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime)
  * integrated, so the offsets neither couple in nor walk (seconds of their walk
  * are nothing beside their prior).
  */
-static double norm3(const double v[3])
-{
-    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-}
-
 void vl_predict_silence_to(vl_estimator_t *e, int64_t utime)
 {
     vl_predict_to(e, e->last_imu_utime + vl_limit_us(e->cfg.max_imu_silence));

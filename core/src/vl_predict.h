@@ -26,10 +26,11 @@ void vl_predict_to_sample(vl_estimator_t *e, const vl_imu_sample_t *imu);
 /**
  * Propagates the state to utime across an IMU silence: with the held
  * velocities up to max_imu_silence after the last sample (vl_predict_to), and
- * from there at the velocity between the last two frames (e->frame_velocity;
- * none before two frames), with 3 times the sensor's noise stds per axis (and,
- * without that velocity, the held sample's speed in them), so that the frames
- * carry the pose. Sets e->unknown_motion and its variances.
+ * from there, in slam mode, at the velocity between the last two frames
+ * (e->frame_velocity), with 3 times the sensor's noise stds per axis plus the
+ * turn rate on the angular ones, so that the frames carry the pose; without
+ * that velocity the mean stays and the stds also take the held sample's speed
+ * and turn rate. Sets e->unknown_motion and its variances.
  */
 void vl_predict_silence_to(vl_estimator_t *e, int64_t utime);
 
