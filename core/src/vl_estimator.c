@@ -332,7 +332,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
         e->counters.frames_reassociated++;
         e->counters.observations_gated += k;
         vl_outliers_break_all(e, k);
-        if (e->cfg.adaptive_noise && !e->unknown_motion && ++e->reassociated_run >= VL_NOISE_CONTRADICTION_RUN) {
+        if (e->cfg.adaptive_noise && ++e->reassociated_run >= VL_NOISE_CONTRADICTION_RUN) {
             vl_noise_widen(e);
         }
         return VL_OK;
