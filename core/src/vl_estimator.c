@@ -363,11 +363,12 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     return vl_update_apply(e, rows, rescued);
 }
 
-/* The body-frame velocity from the previous frame's pose to this one's, over dt seconds. */
+/* The body-frame velocity from the previous frame's pose to this one's, over dt seconds; only
+ * in slam mode do the frames move the pose (elsewhere it would be the prediction's own). */
 static void note_frame_velocity(vl_estimator_t *e, double dt, int had_frame)
 {
     e->have_frame_velocity = 0;
-    if (!had_frame || !(dt > 0.0)) {
+    if (!had_frame || e->cfg.mode != VL_MODE_SLAM || !(dt > 0.0)) {
         return;
     }
     double dR[9], d[3], t[3], xi[6];

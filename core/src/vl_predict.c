@@ -184,12 +184,6 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime)
     }
 }
 
-/* Euclidean norm of a 3-vector. */
-static double norm3(const double v[3])
-{
-    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-}
-
 /*
  * Past max_imu_silence no sample says how the vehicle moves, and a stale one is
  * never integrated. The frames do: the motion between the last two (their
@@ -210,14 +204,14 @@ void vl_predict_silence_to(vl_estimator_t *e, int64_t utime)
         return;
     }
     double v = 3.0 * sqrt(e->linear_velocity_var), w = 3.0 * sqrt(e->angular_velocity_var), xi[6] = {0};
-    if (e->have_frame_velocity && e->cfg.mode == VL_MODE_SLAM) { /* elsewhere the poses are the prediction's */
+    if (e->have_frame_velocity) {
         for (int i = 0; i < 6; ++i) {
             xi[i] = tau * e->frame_velocity[i];
         }
-        w += norm3(&e->frame_velocity[3]); /* a turn may end at once */
+        w += vl_norm3(&e->frame_velocity[3]); /* a turn may end at once */
     } else if (e->held_trusted) {
-        v += norm3(e->held_linear);
-        w += norm3(e->held_angular);
+        v += vl_norm3(e->held_linear);
+        w += vl_norm3(e->held_angular);
     }
     const double noise_var[6] = {v * v, v * v, v * v, w * w, w * w, w * w};
     advance(e, utime, tau, xi, noise_var, NULL);

@@ -94,7 +94,7 @@ void vl_matmul_at(const double *A, const double *B, double *C, int r, int k, int
     }
 }
 
-static double vl_norm3(const double v[3])
+double vl_norm3(const double v[3])
 {
     return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
 }

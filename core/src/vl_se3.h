@@ -50,6 +50,9 @@ void vl_se3_right_jacobian(const double xi[6], double J[36]);
 /** 3x6 circle-dot of a point s: hat(xi) [s; 1] = s_odot xi, s_odot = [I, -hat(s)]. */
 void vl_circle_dot(const double s[3], double D[18]);
 
+/** Euclidean norm of a 3-vector. */
+double vl_norm3(const double v[3]);
+
 /** C = A B for row-major A (r x k), B (k x c). C must not alias A or B. */
 void vl_matmul(const double *A, const double *B, double *C, int r, int k, int c);
 

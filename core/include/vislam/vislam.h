@@ -417,10 +417,10 @@ typedef struct {
     /** The pose after the previous accepted frame: the step to a repeated image (repeat_anchor_noise). */
     double frame_R[9]; /**< world-from-IMU rotation, row-major */
     double frame_p[3]; /**< m */
-    /** The body-frame velocity between the last two accepted frames' poses: what carries the pose
-     * across an IMU silence (vl_predict_silence_to). */
+    /** The body-frame velocity between the last two accepted frames' poses (slam mode): what carries
+     * the pose across an IMU silence (vl_predict_silence_to). */
     double frame_velocity[6]; /**< linear m/s, angular rad/s */
-    int have_frame_velocity;
+    int have_frame_velocity;  /**< frame_velocity holds: two frames in a row, in slam mode */
 
     /** The pose after the last input that passed the divergence check: where a divergence re-initializes. */
     double sound_R[9];  /**< world-from-IMU rotation, row-major */
