@@ -5,8 +5,9 @@
 #     `cmake --install BUILD_DIR` into a temporary prefix; against it, the consumer built with
 #     find_package(vislam) (C, C++, the LCM message types) and with pkg-config (cc and c++, the
 #     public header warning-free under -Wall -Wextra -Werror), run, the pose checked by the program;
-#     a program compiled with another VL_MAX_LANDMARKS gets VL_ERR_ABI_MISMATCH from vl_init (exit
-#     3, no crash); the generated Python message types import from share/vislam/python.
+#     a program compiled with another VL_MAX_LANDMARKS, or with a copy of the headers whose two
+#     configuration keys are swapped (every size the same), gets VL_ERR_ABI_MISMATCH from vl_init
+#     (exit 3, no crash); the generated Python message types import from share/vislam/python.
 #   test_install_consumer.sh subproject BUILD_DIR SOURCE_DIR
 #     the consumer with vislam's source tree as a subproject (add_subdirectory): it builds and runs,
 #     a consumer file with a #warning compiles, and the compile lines of the consumer's files carry
@@ -96,6 +97,21 @@ if [ "$MODE" = install ]; then
   run other "$TMP/pc_other"
   check "... and vl_init refuses it with VL_ERR_ABI_MISMATCH (exit 3, no crash)" eq "$RUN_RC" 3
   check "... saying so" grep -q "VL_MAX_LANDMARKS $OTHER: vl_init: caller compiled with other capacities" "$TMP/other.out"
+
+  # Another vislam.h of the same sizes: two configuration keys of one type swapped in a copy of
+  # the installed headers. Every sizeof agrees; only the layout hash can tell.
+  mkdir -p "$TMP/swapped" && cp -r "$P/include" "$TMP/swapped/"
+  SCHEMA=$TMP/swapped/include/vislam/vl_config_schema.h
+  sed -i -e 's/ linear_offset_prior, DOUBLE/ VL_SWAP_, DOUBLE/' \
+    -e 's/ angular_offset_prior, DOUBLE/ linear_offset_prior, DOUBLE/' \
+    -e 's/ VL_SWAP_, DOUBLE/ angular_offset_prior, DOUBLE/' "$SCHEMA"
+  check "the copy's vislam.h declares angular_offset_prior before linear_offset_prior" \
+    test "$(grep -o -m 1 -E ' (linear|angular)_offset_prior, DOUBLE' "$SCHEMA")" = " angular_offset_prior, DOUBLE"
+  read -r -a VL_SWAPPED <<<"$(pkg-config --cflags --libs vislam | sed "s|-I[^ ]*|-I$TMP/swapped/include|")"
+  "$CC" -std=c99 "$CONSUMER/consumer.c" "${VL_SWAPPED[@]}" -o "$TMP/pc_swapped"
+  check "a consumer compiled with that vislam.h builds" eq $? 0
+  run swapped "$TMP/pc_swapped"
+  check "... and vl_init refuses it with VL_ERR_ABI_MISMATCH (exit 3, no crash)" eq "$RUN_RC" 3
 
   PYTHONPATH=$P/share/vislam/python "${VISLAM_PYTHON:-python3}" -c '
 import bot_core, vislam

@@ -130,14 +130,14 @@ static void reset_state(vl_estimator_t *e, int keep_world)
 }
 
 vl_status_t vl_init_checked(vl_estimator_t *e, const vl_config_t *cfg, size_t estimator_size, size_t config_size,
-                            size_t frame_size, uint32_t max_landmarks)
+                            size_t frame_size, uint32_t max_landmarks, uint32_t layout)
 {
     if (e == NULL || cfg == NULL) {
         return VL_ERR_NULL;
     }
     /* Before anything reads cfg or writes e: the caller's copies may be smaller than ours. */
     if (estimator_size != sizeof(vl_estimator_t) || config_size != sizeof(vl_config_t) ||
-        frame_size != sizeof(vl_stereo_frame_t) || max_landmarks != VL_MAX_LANDMARKS) {
+        frame_size != sizeof(vl_stereo_frame_t) || max_landmarks != VL_MAX_LANDMARKS || layout != vl_abi_layout()) {
         return VL_ERR_ABI_MISMATCH;
     }
     if (((uintptr_t)(const void *)e % VL_ESTIMATOR_ALIGN) != 0) {

@@ -6,7 +6,7 @@
  *
  * Exit status: 0 the pose is right; 1 something else failed; 3 vl_init refused
  * the build with VL_ERR_ABI_MISMATCH (expected of a build with another
- * VL_MAX_LANDMARKS than the library's).
+ * VL_MAX_LANDMARKS or another vislam.h than the library's).
  */
 #include <math.h>
 #include <stdio.h>

@@ -471,17 +471,124 @@ void vl_config_preset_seed(vl_config_t *cfg);
 vl_status_t vl_config_check(const vl_config_t *cfg);
 
 /**
+ * The members of the API's types that a caller fills or reads, in declaration
+ * order, as X(type, member): all but the configuration's table rows and the
+ * counters, which come from VL_CONFIG_KEYS and VL_COUNTERS. vl_abi_layout()
+ * hashes them; tests/python/test_abi_layout.py checks that this list names
+ * every member of those types.
+ */
+#define VL_ABI_MEMBERS(X)                \
+    X(vl_calibration_t, fx)              \
+    X(vl_calibration_t, fy)              \
+    X(vl_calibration_t, cx)              \
+    X(vl_calibration_t, cy)              \
+    X(vl_calibration_t, baseline)        \
+    X(vl_calibration_t, cam_T_imu)       \
+    X(vl_landmark_t, id)                 \
+    X(vl_landmark_t, position)           \
+    X(vl_landmark_t, covariance)         \
+    X(vl_landmark_t, observations)       \
+    X(vl_landmark_t, first_utime)        \
+    X(vl_landmark_t, last_utime)         \
+    X(vl_config_t, calibration)          \
+    X(vl_config_t, landmark_sink)        \
+    X(vl_config_t, landmark_sink_user)   \
+    X(vl_config_t, log)                  \
+    X(vl_config_t, log_user)             \
+    X(vl_config_t, parallel_for)         \
+    X(vl_config_t, parallel_ctx)         \
+    X(vl_imu_sample_t, utime)            \
+    X(vl_imu_sample_t, linear_velocity)  \
+    X(vl_imu_sample_t, angular_velocity) \
+    X(vl_stereo_obs_t, id)               \
+    X(vl_stereo_obs_t, u_left)           \
+    X(vl_stereo_obs_t, v_left)           \
+    X(vl_stereo_obs_t, u_right)          \
+    X(vl_stereo_obs_t, v_right)          \
+    X(vl_stereo_frame_t, utime)          \
+    X(vl_stereo_frame_t, count)          \
+    X(vl_stereo_frame_t, obs)            \
+    X(vl_pose_t, utime)                  \
+    X(vl_pose_t, rotation)               \
+    X(vl_pose_t, position)               \
+    X(vl_pose_t, covariance)             \
+    X(vl_pose_t, linear_velocity)        \
+    X(vl_pose_t, angular_velocity)       \
+    X(vl_pose_t, linear_offset)          \
+    X(vl_pose_t, angular_offset)         \
+    X(vl_pose_t, linear_velocity_noise)  \
+    X(vl_pose_t, angular_velocity_noise) \
+    X(vl_pose_t, pixel_noise)            \
+    X(vl_counter_entry_t, name)          \
+    X(vl_counter_entry_t, value)         \
+    X(vl_counter_entry_t, meaning)       \
+    X(vl_work_t, flops)                  \
+    X(vl_work_t, predict)                \
+    X(vl_work_t, gate)                   \
+    X(vl_work_t, ransac)                 \
+    X(vl_work_t, update)                 \
+    X(vl_work_t, rescue)                 \
+    X(vl_work_t, window)                 \
+    X(vl_work_t, state_dim)              \
+    X(vl_work_t, rows)                   \
+    X(vl_work_t, hypotheses)
+
+/** @cond */
+/* FNV-1a over one member: its name, then the bytes of its offset and size. */
+static inline uint32_t vl_abi_mix_(uint32_t h, const char *name, size_t offset, size_t size)
+{
+    for (; *name != '\0'; ++name) {
+        h = (h ^ (uint8_t)*name) * 16777619u;
+    }
+    for (unsigned shift = 0; shift < 32u; shift += 8u) {
+        h = (h ^ (uint8_t)(offset >> shift)) * 16777619u;
+        h = (h ^ (uint8_t)(size >> shift)) * 16777619u;
+    }
+    return h;
+}
+#define VL_ABI_MEMBER_(type, member) \
+    h = vl_abi_mix_(h, #type "." #member, offsetof(type, member), sizeof(((type *)0)->member));
+#define VL_ABI_CONFIG_(section, key, field, type, def, min, max, min_open, units, meaning) \
+    h = vl_abi_mix_(h, "vl_config_t." #field " " #type, offsetof(vl_config_t, field),      \
+                    sizeof(((vl_config_t *)0)->field));
+#define VL_ABI_COUNTER_(type, name, meaning)                                            \
+    h = vl_abi_mix_(h, "vl_counters_t." #name " " #type, offsetof(vl_counters_t, name), \
+                    sizeof(((vl_counters_t *)0)->name));
+/** @endcond */
+
+/**
+ * The API's layout as this translation unit's vislam.h declares it: a hash of
+ * the name, offset and size of every member of the types a caller fills or
+ * reads (the configuration's table rows with their value types, its other
+ * members, the inputs, pose, landmarks, counters and work counts), and of the
+ * status codes' and modes' values. vl_init passes the caller's; the library
+ * compares it with its own, so another vislam.h is refused even where every
+ * size agrees (two keys swapped, a member renamed or retyped at the same size).
+ */
+static inline uint32_t vl_abi_layout(void)
+{
+    uint32_t h = 2166136261u;
+    VL_CONFIG_KEYS(VL_ABI_CONFIG_)
+    VL_COUNTERS(VL_ABI_COUNTER_)
+    VL_ABI_MEMBERS(VL_ABI_MEMBER_)
+    h = vl_abi_mix_(h, "vl_status_t", (size_t)(VL_STATUS_MAX - VL_STATUS_MIN), (size_t)(0 - VL_STATUS_MIN));
+    h = vl_abi_mix_(h, "vl_mode_t", (size_t)VL_MODE_MAPPING, (size_t)VL_MODE_SLAM);
+    return h;
+}
+
+/**
  * Initializes the estimator: identity pose, empty window. The config is copied.
  *
- * A macro over vl_init_checked: it passes the sizes and capacities the caller
- * was compiled with, so a caller built with another VL_MAX_LANDMARKS (or
+ * A macro over vl_init_checked: it passes the sizes, capacities and layout the
+ * caller was compiled with, so a caller built with another VL_MAX_LANDMARKS (or
  * another vislam.h) than the library gets VL_ERR_ABI_MISMATCH instead of a
- * library writing past the end of a smaller estimator.
+ * library writing past the end of a smaller estimator or reading a
+ * configuration laid out otherwise.
  * @return VL_OK, VL_ERR_NULL, VL_ERR_ABI_MISMATCH, VL_ERR_MISALIGNED or VL_ERR_CONFIG
  */
 #define vl_init(e, cfg)                                                                                 \
     vl_init_checked((e), (cfg), sizeof(vl_estimator_t), sizeof(vl_config_t), sizeof(vl_stereo_frame_t), \
-                    VL_MAX_LANDMARKS)
+                    VL_MAX_LANDMARKS, vl_abi_layout())
 
 /**
  * vl_init with the caller's view of the types: refuses with VL_ERR_ABI_MISMATCH,
@@ -490,9 +597,10 @@ vl_status_t vl_config_check(const vl_config_t *cfg);
  * @param config_size    sizeof(vl_config_t), bytes
  * @param frame_size     sizeof(vl_stereo_frame_t), bytes (it carries VL_MAX_FRAME_FEATURES)
  * @param max_landmarks  VL_MAX_LANDMARKS
+ * @param layout         vl_abi_layout()
  */
 vl_status_t vl_init_checked(vl_estimator_t *e, const vl_config_t *cfg, size_t estimator_size, size_t config_size,
-                            size_t frame_size, uint32_t max_landmarks);
+                            size_t frame_size, uint32_t max_landmarks, uint32_t layout);
 
 /**
  * Propagates the state to imu->utime with the previously held velocities,
