@@ -8,7 +8,6 @@
 #define _POSIX_C_SOURCE 200809L
 
 #include <errno.h>
-#include <math.h>
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -21,6 +20,7 @@
 #include "vl_config_file.h"
 #include "vl_latency.h"
 #include "vl_log_reader.h"
+#include "vl_map_file.h"
 #include "vl_msg.h"
 #include "vl_session.h"
 #include "vl_trajectory_file.h"
@@ -48,17 +48,8 @@ typedef struct {
     vl_worker_options_t worker;
 } options_t;
 
-/* Compact map entry: what the PLY needs. */
 typedef struct {
-    int32_t id;
-    float position[3];
-    float sigma;
-    uint32_t observations;
-    int64_t first_utime;
-} map_point_t;
-
-typedef struct {
-    map_point_t *points;
+    vl_map_point_t *points;
     size_t count;
     size_t capacity;
     int oom;
@@ -191,7 +182,7 @@ static void map_sink(void *user, const vl_landmark_t *lm)
     map_t *m = &((sinks_t *)user)->map;
     if (m->count == m->capacity) {
         size_t cap = m->capacity == 0 ? 1024 : 2 * m->capacity;
-        map_point_t *p = (map_point_t *)realloc(m->points, cap * sizeof(*p));
+        vl_map_point_t *p = (vl_map_point_t *)realloc(m->points, cap * sizeof(*p));
         if (p == NULL) {
             m->oom = 1;
             return;
@@ -199,15 +190,7 @@ static void map_sink(void *user, const vl_landmark_t *lm)
         m->points = p;
         m->capacity = cap;
     }
-    map_point_t *pt = &m->points[m->count++];
-    pt->id = lm->id;
-    for (int i = 0; i < 3; ++i) {
-        pt->position[i] = (float)lm->position[i];
-    }
-    double trace = lm->covariance[0] + lm->covariance[4] + lm->covariance[8];
-    pt->sigma = (float)sqrt(trace > 0.0 ? trace : 0.0);
-    pt->observations = lm->observations;
-    pt->first_utime = lm->first_utime;
+    vl_map_point_from_landmark(lm, &m->points[m->count++]);
 }
 
 /* ---- outputs ---- */
@@ -324,27 +307,7 @@ static int write_ply(const char *path, const map_t *m)
         fprintf(stderr, "vislam-run: cannot write map %s: %s\n", path, strerror(errno));
         return -1;
     }
-    fprintf(f,
-            "ply\n"
-            "format ascii 1.0\n"
-            "comment vislam-run map: marginalized landmarks, world frame, m; sigma = sqrt(trace(cov))\n"
-            "element vertex %zu\n"
-            "property float x\n"
-            "property float y\n"
-            "property float z\n"
-            "property int id\n"
-            "property float sigma\n"
-            "property uint observations\n"
-            "property double first_time\n"
-            "end_header\n",
-            m->count);
-    for (size_t i = 0; i < m->count; ++i) {
-        const map_point_t *p = &m->points[i];
-        fprintf(f, "%.9g %.9g %.9g %d %.9g %u %lld.%06lld\n", (double)p->position[0], (double)p->position[1],
-                (double)p->position[2], (int)p->id, (double)p->sigma, (unsigned)p->observations,
-                (long long)(p->first_utime / 1000000), (long long)(p->first_utime % 1000000));
-    }
-    int bad = ferror(f);
+    const int bad = vl_map_write_ply(f, m->points, m->count);
     if (fclose(f) != 0 || bad) {
         fprintf(stderr, "vislam-run: write error on map %s\n", path);
         return -1;
