@@ -2,7 +2,7 @@
  * @file vl_channels.h
  * @brief The default LCM channel names, defined once for every program and test tool.
  *
- * vislamd subscribes to the three inputs and publishes the three outputs;
+ * vislamd subscribes to the three inputs and publishes the four outputs;
  * vislam-replay, vislam-run (through the log reader), vislam-sim and the test
  * tools use the same names. Programs that take a channel option start from these.
  * The Python tools (tools/vislam_tools) cannot include this header and spell the
@@ -23,5 +23,7 @@
 #define VL_CHANNEL_BOT_POSE "POSE"
 /** vislam.status_t: counts, timing and health, once a second and on events. */
 #define VL_CHANNEL_STATUS "VISLAM_STATUS"
+/** vislam.landmarks_t: the landmarks leaving the window (the map), in batches. */
+#define VL_CHANNEL_LANDMARKS "VISLAM_LANDMARKS"
 
 #endif /* VISLAM_PLATFORM_VL_CHANNELS_H */

@@ -158,6 +158,56 @@ vl_msg_status_t vl_msg_from_pose_bot(const vl_pose_t *pose, bot_core_pose_t *out
     return VL_MSG_OK;
 }
 
+/* The covariance's upper triangle, row by row: (0,0) (0,1) (0,2) (1,1) (1,2) (2,2) of the 3x3. */
+static const int k_upper[6] = {0, 1, 2, 4, 5, 8};
+
+vl_msg_status_t vl_msg_add_landmark(const vl_landmark_t *landmark, vislam_landmarks_t *batch)
+{
+    if (landmark == NULL || batch == NULL) {
+        return VL_MSG_ERR_NULL;
+    }
+    if (batch->count < 0 || batch->count >= VISLAM_LANDMARKS_T_MAX_LANDMARKS) {
+        return VL_MSG_ERR_COUNT;
+    }
+    const int32_t i = batch->count++;
+    batch->id[i] = landmark->id;
+    for (int k = 0; k < 3; ++k) {
+        batch->position[i][k] = landmark->position[k];
+    }
+    for (int k = 0; k < 6; ++k) {
+        batch->covariance[i][k] = landmark->covariance[k_upper[k]];
+    }
+    batch->observations[i] = (int32_t)landmark->observations;
+    batch->first_utime[i] = landmark->first_utime;
+    batch->last_utime[i] = landmark->last_utime;
+    return VL_MSG_OK;
+}
+
+vl_msg_status_t vl_msg_to_landmark(const vislam_landmarks_t *batch, int32_t index, vl_landmark_t *out)
+{
+    if (batch == NULL || out == NULL) {
+        return VL_MSG_ERR_NULL;
+    }
+    if (batch->count < 0 || batch->count > VISLAM_LANDMARKS_T_MAX_LANDMARKS || index < 0 || index >= batch->count) {
+        return VL_MSG_ERR_COUNT;
+    }
+    out->id = batch->id[index];
+    for (int k = 0; k < 3; ++k) {
+        out->position[k] = batch->position[index][k];
+    }
+    for (int r = 0; r < 3; ++r) {
+        for (int c = r; c < 3; ++c) {
+            const int k = r == 0 ? c : (r == 1 ? 2 + c : 5); /* the upper triangle's index of (r, c) */
+            out->covariance[3 * r + c] = batch->covariance[index][k];
+            out->covariance[3 * c + r] = batch->covariance[index][k];
+        }
+    }
+    out->observations = (uint32_t)batch->observations[index];
+    out->first_utime = batch->first_utime[index];
+    out->last_utime = batch->last_utime[index];
+    return VL_MSG_OK;
+}
+
 int vl_calibration_equal(const vl_calibration_t *a, const vl_calibration_t *b)
 {
     if (a->fx != b->fx || a->fy != b->fy || a->cx != b->cx || a->cy != b->cy || a->baseline != b->baseline) {

@@ -16,6 +16,7 @@
 #include "bot_core_pose_t.h"
 #include "vislam_calibration_t.h"
 #include "vislam_imu_t.h"
+#include "vislam_landmarks_t.h"
 #include "vislam_pose_t.h"
 #include "vislam_stereo_frame_t.h"
 
@@ -83,6 +84,20 @@ vl_msg_status_t vl_msg_from_pose(const vl_pose_t *pose, int8_t source, int64_t s
  * offset-corrected body-frame values of @p pose; accel zero (not estimated).
  */
 vl_msg_status_t vl_msg_from_pose_bot(const vl_pose_t *pose, bot_core_pose_t *out);
+
+/**
+ * Appends a landmark to a batch message (its covariance as the upper triangle).
+ * @return VL_MSG_OK, or VL_MSG_ERR_COUNT when the batch already holds
+ *         VISLAM_LANDMARKS_T_MAX_LANDMARKS (nothing written: publish it and start another)
+ */
+vl_msg_status_t vl_msg_add_landmark(const vl_landmark_t *landmark, vislam_landmarks_t *batch);
+
+/**
+ * Reads entry @p index of a batch message back into the core type.
+ * @return VL_MSG_OK, or VL_MSG_ERR_COUNT when index is outside 0..count-1 of a count
+ *         within 0..VISLAM_LANDMARKS_T_MAX_LANDMARKS (nothing written)
+ */
+vl_msg_status_t vl_msg_to_landmark(const vislam_landmarks_t *batch, int32_t index, vl_landmark_t *out);
 
 #ifdef __cplusplus
 }

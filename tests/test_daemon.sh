@@ -10,7 +10,9 @@
 #      POSE; the status messages' contents are consistent (decoded from an lcm-logger log).
 #   2. equivalence: the daemon's trajectory under a --lockstep replay is byte-identical to
 #      vislam-run's on the same log; its --step-samples hold one line per frame, in the
-#      trajectory's order, each with a positive step time (ns).
+#      trajectory's order, each with a positive step time (ns); its map (VISLAM_LANDMARKS, the
+#      window flushed at exit included), written as a PLY, is byte-identical to vislam-run --map's,
+#      in well-formed batches numbered in order, as many landmarks as the final status' mapped.
 #   3. SIGTERM mid-run: exit 0, the trajectory is a complete prefix of the offline one ending
 #      at the last frame whose pose was published, and a final status was published.
 #   4. heap allocations after start-up (LD_PRELOAD counter, reporting to its own file; the
@@ -70,7 +72,7 @@ start_recording() {
 }
 START=$SECONDS
 echo "== offline reference: vislam-run"
-"$BIN/vislam-run" "$LOG" --trajectory "$OUT/offline.tum" --quiet
+"$BIN/vislam-run" "$LOG" --trajectory "$OUT/offline.tum" --map "$OUT/offline.ply" --quiet
 check "vislam-run succeeds" eq $? 0
 FRAMES=$(wc -l <"$OUT/offline.tum")
 check "offline trajectory has 200 lines" eq "$FRAMES" 200
@@ -78,7 +80,7 @@ LAST_UTIME=$(tail -n 1 "$OUT/offline.tum" | awk '{ split($1, t, "."); printf "%d
 
 # ---- run A: full lockstep replay at 4x ---------------------------------------------------------
 echo "== run A: vislamd + vislam-replay --lockstep --speed 4"
-start_recording a '(VISLAM_IMU|VISLAM_FEATURES|VISLAM_CALIB|VISLAM_POSE|POSE|VISLAM_STATUS)' "$OUT/a.daemon.err" -- \
+start_recording a '(VISLAM_IMU|VISLAM_FEATURES|VISLAM_CALIB|VISLAM_POSE|POSE|VISLAM_STATUS|VISLAM_LANDMARKS)' "$OUT/a.daemon.err" -- \
   env VL_ALLOC_REPORT="$OUT/a.alloc" ${ALLOC_SO:+LD_PRELOAD="$ALLOC_SO"} "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/a.tum" \
   --step-samples "$OUT/a.steps"
 check "run A: the daemon's first status recorded before any input" eq $? 0
@@ -87,7 +89,7 @@ check "run A: the daemon's first status recorded before any input" eq $? 0
 check "replay A exits 0 (every frame's pose came back)" eq $? 0
 record_stop a
 check "daemon A exits 0 on SIGTERM" eq "$WAIT_RC" 0
-"$INSPECT" "$OUT/a.lcmlog" >"$OUT/a.inspect"
+"$INSPECT" "$OUT/a.lcmlog" --map-out "$OUT/a.map.ply" >"$OUT/a.inspect"
 sed 's/^/      /' "$OUT/a.replay.err" | grep -v '^\s*$'
 grep -E 'step latency|all steps|propagation|update  ' "$OUT/a.daemon.err" | sed 's/^/      /'
 sed 's/^/      /' "$OUT/a.alloc"
@@ -106,9 +108,9 @@ check "first status: waiting for calibration" eq "$(value "$A" status.first.heal
 check "final status: imu_in 200, frames_in 200, poses_out 400, rejected 0, steps 400" \
   eq "$(value "$A" status.last.imu_in)/$(value "$A" status.last.frames_in)/$(value "$A" status.last.poses_out)/$(value "$A" status.last.inputs_rejected)/$(value "$A" status.last.steps)" "200/200/400/0/400"
 check "final status: last_input_utime is the last frame's" eq "$(value "$A" status.last.last_input_utime)" "$LAST_UTIME"
-check "final status: window capacity 128, 0 < landmarks <= 128, landmarks mapped > 0" \
-  test "$(value "$A" status.last.window_capacity)" = 128 -a "$(value "$A" status.last.window_landmarks)" -gt 0 \
-  -a "$(value "$A" status.last.window_landmarks)" -le 128 -a "$(value "$A" status.last.landmarks_mapped)" -gt 0
+check "final status: window capacity 128, the window flushed to the map at exit (0 left), landmarks mapped > 0" \
+  test "$(value "$A" status.last.window_capacity)" = 128 -a "$(value "$A" status.last.window_landmarks)" = 0 \
+  -a "$(value "$A" status.last.landmarks_mapped)" -gt 0
 check "final status: the noise in use is published (positive)" awk -v a="$(value "$A" status.last.linear_velocity_noise)" \
   -v b="$(value "$A" status.last.angular_velocity_noise)" -v c="$(value "$A" status.last.pixel_noise)" 'BEGIN { exit !(a > 0 && b > 0 && c > 0) }'
 check "final status: observations gated > 0 (the sample has outliers)" test "$(value "$A" status.last.observations_gated)" -gt 0
@@ -128,6 +130,13 @@ check "daemon trajectory (lockstep) byte-identical to vislam-run's" cmp "$OUT/a.
 check "--step-samples: a line per frame, the trajectory's utimes in order, each step > 0 ns" cmp \
   <(awk '$2 > 0 { print $1 }' "$OUT/a.steps") \
   <(awk '!/^#/ { split($1, t, "."); printf "%d%06d\n", t[1], t[2] }' "$OUT/offline.tum")
+MAPPED=$(value "$A" map.landmarks)
+check "VISLAM_LANDMARKS: $MAPPED landmarks in $(value "$A" map.batches) batches, numbered in order, well formed, decoded" \
+  test "$MAPPED" -gt 0 -a "$(value "$A" map.sequence_ok)/$(value "$A" map.well_formed)/$(value "$A" map.decode_errors)" = "1/1/0"
+check "VISLAM_LANDMARKS: as many landmarks as the final status' landmarks_mapped" \
+  eq "$MAPPED" "$(value "$A" status.last.landmarks_mapped)"
+check "the daemon's map (window flushed at exit) byte-identical to vislam-run --map's" \
+  cmp "$OUT/a.map.ply" "$OUT/offline.ply"
 
 # (4) allocations after start-up
 if [ -n "$ALLOC_SO" ]; then

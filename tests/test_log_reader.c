@@ -616,6 +616,56 @@ void test_vl_msg_calibration_round_trip(void)
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(m.cam_T_imu, back.cam_T_imu, 16);
 }
 
+void test_vl_msg_landmark_batch_round_trip_and_capacity(void)
+{
+    static vislam_landmarks_t batch;
+    memset(&batch, 0, sizeof(batch));
+    vl_landmark_t lm, back;
+    memset(&lm, 0, sizeof(lm));
+    lm.id = 41;
+    lm.position[0] = 1.5;
+    lm.position[1] = -2.25;
+    lm.position[2] = 30.0;
+    const double cov[9] = {4.0, 0.5, -0.25, 0.5, 9.0, 0.125, -0.25, 0.125, 16.0}; /* symmetric */
+    memcpy(lm.covariance, cov, sizeof(cov));
+    lm.observations = 7;
+    lm.first_utime = 1317384000000000;
+    lm.last_utime = 1317384000600000;
+    for (int32_t i = 0; i < VISLAM_LANDMARKS_T_MAX_LANDMARKS; ++i) {
+        lm.id = 41 + i;
+        TEST_ASSERT_EQUAL_INT(VL_MSG_OK, vl_msg_add_landmark(&lm, &batch));
+    }
+    TEST_ASSERT_EQUAL_INT32(VISLAM_LANDMARKS_T_MAX_LANDMARKS, batch.count);
+    /* Full: refused, nothing written. */
+    TEST_ASSERT_EQUAL_INT(VL_MSG_ERR_COUNT, vl_msg_add_landmark(&lm, &batch));
+    TEST_ASSERT_EQUAL_INT32(VISLAM_LANDMARKS_T_MAX_LANDMARKS, batch.count);
+    TEST_ASSERT_EQUAL_INT(VL_MSG_OK, vl_msg_to_landmark(&batch, 3, &back));
+    TEST_ASSERT_EQUAL_INT32(44, back.id);
+    TEST_ASSERT_EQUAL_DOUBLE_ARRAY(lm.position, back.position, 3);
+    TEST_ASSERT_EQUAL_DOUBLE_ARRAY(cov, back.covariance, 9);
+    TEST_ASSERT_EQUAL_UINT32(7, back.observations);
+    TEST_ASSERT_EQUAL_INT64(lm.first_utime, back.first_utime);
+    TEST_ASSERT_EQUAL_INT64(lm.last_utime, back.last_utime);
+    /* Through the wire: encode, decode, the same entry. */
+    static uint8_t buf[8192];
+    static vislam_landmarks_t decoded;
+    const int len = vislam_landmarks_t_encode(buf, 0, (int)sizeof(buf), &batch);
+    TEST_ASSERT_TRUE(len > 0);
+    TEST_ASSERT_TRUE(vl_msg_decoded_whole(vislam_landmarks_t_decode(buf, 0, len, &decoded), len));
+    TEST_ASSERT_EQUAL_INT(VL_MSG_OK, vl_msg_to_landmark(&decoded, VISLAM_LANDMARKS_T_MAX_LANDMARKS - 1, &back));
+    TEST_ASSERT_EQUAL_INT32(41 + VISLAM_LANDMARKS_T_MAX_LANDMARKS - 1, back.id);
+    TEST_ASSERT_EQUAL_DOUBLE_ARRAY(cov, back.covariance, 9);
+    /* Entries outside the batch, and a corrupt count, are refused. */
+    TEST_ASSERT_EQUAL_INT(VL_MSG_ERR_COUNT, vl_msg_to_landmark(&batch, -1, &back));
+    TEST_ASSERT_EQUAL_INT(VL_MSG_ERR_COUNT, vl_msg_to_landmark(&batch, VISLAM_LANDMARKS_T_MAX_LANDMARKS, &back));
+    decoded.count = VISLAM_LANDMARKS_T_MAX_LANDMARKS + 1;
+    TEST_ASSERT_EQUAL_INT(VL_MSG_ERR_COUNT, vl_msg_to_landmark(&decoded, 0, &back));
+    decoded.count = -1;
+    TEST_ASSERT_EQUAL_INT(VL_MSG_ERR_COUNT, vl_msg_add_landmark(&lm, &decoded));
+    TEST_ASSERT_EQUAL_INT(VL_MSG_ERR_NULL, vl_msg_add_landmark(NULL, &batch));
+    TEST_ASSERT_EQUAL_INT(VL_MSG_ERR_NULL, vl_msg_to_landmark(&batch, 0, NULL));
+}
+
 /* Rotation about a unit axis by angle, row-major. */
 static void axis_angle(const double a[3], double th, double R[9])
 {
@@ -789,5 +839,6 @@ int main(void)
     RUN_TEST(test_vl_rotation_to_quaternion_matches_axis_angle);
     RUN_TEST(test_vl_msg_from_pose_fills_both_messages);
     RUN_TEST(test_vl_msg_from_pose_bot_rotates_velocities_into_the_world);
+    RUN_TEST(test_vl_msg_landmark_batch_round_trip_and_capacity);
     return UNITY_END();
 }

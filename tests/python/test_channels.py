@@ -15,6 +15,7 @@ def test_names_are_the_headers():
     assert defined["POSE"] == channels.POSE
     assert defined["STATUS"] == channels.STATUS
     assert defined["BOT_POSE"] == channels.BOT_POSE
+    assert defined["LANDMARKS"] == channels.LANDMARKS
 
 
 def test_prefix_replaces_the_shared_part():

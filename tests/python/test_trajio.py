@@ -3,7 +3,7 @@ import pytest
 
 from vislam_tools import ToolError
 from vislam_tools.geometry import make_pose, se3_inv, so3_exp
-from vislam_tools.trajio import (Calibration, read_ground_truth, read_kitti, read_ply, read_tum,
+from vislam_tools.trajio import (Calibration, read_ground_truth, read_kitti, read_map, read_ply, read_tum,
                                  sniff_trajectory_format, write_tum)
 
 RNG = np.random.default_rng(3)
@@ -155,3 +155,42 @@ def test_ply_errors(tmp_path, text, match):
     path.write_text(text)
     with pytest.raises(ToolError, match=match):
         read_ply(path)
+
+
+def _landmarks_batch(vislam, first, count, sequence):
+    m = vislam.landmarks_t()
+    m.utime, m.sequence, m.first_index, m.count = 1_317_384_000_100_000 + sequence, sequence, first, count
+    for i in range(count):
+        m.id[i] = first + i
+        m.position[i] = [1.0 + i, -2.0, 30.0 + 0.5 * i]
+        m.covariance[i] = [4.0, 0.1, 0.2, 9.0, 0.3, 12.0]  # xx xy xz yy yz zz: trace 25
+        m.observations[i] = 3 + i
+        m.first_utime[i] = 1_317_384_000_000_000 + 100_000 * i
+        m.last_utime[i] = m.first_utime[i] + 500_000
+    return m
+
+
+def test_map_from_a_recording_of_vislamd(tmp_path, vislam_types):
+    """read_map reads a recorded VISLAM_LANDMARKS stream as vislam-run's PLY columns, in order;
+    other channels and types are skipped; a PLY still reads as before."""
+    import lcm
+    from vislam_tools import channels
+    path = tmp_path / "daemon.lcmlog"
+    log = lcm.EventLog(str(path), "w", overwrite=True)
+    log.write_event(1, channels.LANDMARKS, _landmarks_batch(vislam_types, 0, 3, 0).encode())
+    log.write_event(2, channels.POSE, vislam_types.pose_t().encode())
+    log.write_event(3, channels.LANDMARKS, _landmarks_batch(vislam_types, 3, 2, 1).encode())
+    log.close()
+    m = read_map(path)
+    np.testing.assert_array_equal(m["id"], [0, 1, 2, 3, 4])
+    np.testing.assert_allclose(m["x"], [1, 2, 3, 1, 2])
+    np.testing.assert_allclose(m["z"], [30, 30.5, 31, 30, 30.5])
+    np.testing.assert_allclose(m["sigma"], 5.0)
+    np.testing.assert_array_equal(m["observations"], [3, 4, 5, 3, 4])
+    np.testing.assert_allclose(m["first_time"], 1_317_384_000.0 + 0.1 * np.array([0, 1, 2, 0, 1]))
+    with pytest.raises(ToolError, match="no vislam.landmarks_t"):
+        read_map(path, channel="CAR1_LANDMARKS")  # no such channel in the recording
+    ply = tmp_path / "m.ply"
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+                   "property float z\nend_header\n1 2 3\n")
+    np.testing.assert_array_equal(read_map(ply)["z"], [3])

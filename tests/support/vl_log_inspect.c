@@ -1,6 +1,6 @@
 /*
- * vl_log_inspect LOG [--after UTIME]: summarizes what vislamd published, from a log recorded
- * with lcm-logger, as "key value" lines for tests/test_daemon.sh:
+ * vl_log_inspect LOG [--after UTIME] [--map-out MAP.ply]: summarizes what vislamd published, from
+ * a log recorded with lcm-logger, as "key value" lines for tests/test_daemon.sh:
  *
  *   channel.NAME N                 events per channel
  *   pose.count / pose.imu / pose.features / pose.decode_errors
@@ -12,7 +12,12 @@
  *   status.health_any V            the OR of every status' health bits
  *   pose.non_finite N               poses with a NaN or infinite position, orientation or covariance
  *   pose.features_after N           with --after: distinct utimes > UTIME of finite FEATURES poses
+ *   map.batches / map.landmarks / map.decode_errors   VISLAM_LANDMARKS messages and their entries
+ *   map.sequence_ok 1|0            batch sequences are 0, 1, 2, ... and each first_index counts the
+ *                                  landmarks of the batches before it
+ *   map.well_formed 1|0            every batch holds 1..MAX_LANDMARKS entries and zeros past them
  *   log.damaged N / log.truncated 0|1   damaged spots in the recorded log itself (vl_log_guard)
+ * With --map-out, the landmarks in the order received as the PLY vislam-run --map writes.
  */
 #include <inttypes.h>
 #include <math.h>
@@ -25,9 +30,11 @@
 
 #include "vl_channels.h"
 #include "vl_log_guard.h"
+#include "vl_map_file.h"
 #include "vl_msg.h"
 
 #include "bot_core_pose_t.h"
+#include "vislam_landmarks_t.h"
 #include "vislam_pose_t.h"
 #include "vislam_status_t.h"
 
@@ -96,6 +103,22 @@ static void print_status(const char *which, const vislam_status_t *s)
 #undef FDBL
 }
 
+/* 1 when every entry past m->count is zero, as the message type promises. */
+static int batch_tail_zero(const vislam_landmarks_t *m)
+{
+    for (int32_t i = m->count; i < VISLAM_LANDMARKS_T_MAX_LANDMARKS; ++i) {
+        if (m->id[i] != 0 || m->observations[i] != 0 || m->first_utime[i] != 0 || m->last_utime[i] != 0) {
+            return 0;
+        }
+        for (int k = 0; k < 6; ++k) {
+            if ((k < 3 && m->position[i][k] != 0.0) || m->covariance[i][k] != 0.0) {
+                return 0;
+            }
+        }
+    }
+    return 1;
+}
+
 static int pose_finite(const vislam_pose_t *p)
 {
     double sum = 0.0;
@@ -115,11 +138,20 @@ int main(int argc, char **argv)
 {
     int have_after = 0;
     int64_t after = 0;
-    if (argc == 4 && strcmp(argv[2], "--after") == 0) {
-        have_after = 1;
-        after = strtoll(argv[3], NULL, 10);
-    } else if (argc != 2) {
-        fprintf(stderr, "usage: vl_log_inspect LOG [--after UTIME]\n");
+    const char *map_out = NULL;
+    int bad_args = argc < 2 || argc % 2 != 0;
+    for (int i = 2; i + 1 < argc && !bad_args; i += 2) {
+        if (strcmp(argv[i], "--after") == 0) {
+            have_after = 1;
+            after = strtoll(argv[i + 1], NULL, 10);
+        } else if (strcmp(argv[i], "--map-out") == 0) {
+            map_out = argv[i + 1];
+        } else {
+            bad_args = 1;
+        }
+    }
+    if (bad_args) {
+        fprintf(stderr, "usage: vl_log_inspect LOG [--after UTIME] [--map-out MAP.ply]\n");
         return 2;
     }
     lcm_eventlog_t *log = lcm_eventlog_create(argv[1], "r");
@@ -130,6 +162,11 @@ int main(int argc, char **argv)
     static vislam_pose_t pose;
     static bot_core_pose_t bot;
     static vislam_status_t status, first_status, last_status;
+    static vislam_landmarks_t batch;
+    uint64_t batches = 0, landmarks = 0, map_err = 0;
+    int map_sequence_ok = 1, map_well_formed = 1;
+    vl_map_point_t *points = NULL;
+    size_t capacity = 0;
     uint64_t poses = 0, imu = 0, features = 0, pose_err = 0, bots = 0, bot_err = 0, statuses = 0, status_err = 0;
     int sequence_ok = 1, bot_match = 1, status_increasing = 1;
     int32_t health_any = 0;
@@ -188,6 +225,30 @@ int main(int argc, char **argv)
                 }
                 bots++;
             }
+        } else if (strcmp(ev->channel, VL_CHANNEL_LANDMARKS) == 0) {
+            if (!vl_msg_decoded_whole(vislam_landmarks_t_decode(ev->data, 0, ev->datalen, &batch), ev->datalen)) {
+                map_err++;
+            } else {
+                if (batch.sequence != (int64_t)batches || batch.first_index != (int64_t)landmarks) {
+                    map_sequence_ok = 0;
+                }
+                if (batch.count < 1 || batch.count > VISLAM_LANDMARKS_T_MAX_LANDMARKS || !batch_tail_zero(&batch)) {
+                    map_well_formed = 0;
+                }
+                vl_landmark_t lm;
+                for (int32_t i = 0; vl_msg_to_landmark(&batch, i, &lm) == VL_MSG_OK; ++i) {
+                    if (landmarks == capacity) {
+                        capacity = capacity == 0 ? 1024 : 2 * capacity;
+                        points = (vl_map_point_t *)realloc(points, capacity * sizeof(*points));
+                        if (points == NULL) {
+                            fprintf(stderr, "vl_log_inspect: out of memory\n");
+                            return 2;
+                        }
+                    }
+                    vl_map_point_from_landmark(&lm, &points[landmarks++]);
+                }
+                batches++;
+            }
         } else if (strcmp(ev->channel, VL_CHANNEL_STATUS) == 0) {
             if (!vl_msg_decoded_whole(vislam_status_t_decode(ev->data, 0, ev->datalen, &status), ev->datalen)) {
                 status_err++;
@@ -220,7 +281,19 @@ int main(int argc, char **argv)
     if (have_after) {
         printf("pose.features_after %" PRIu64 "\n", features_after);
     }
+    printf("map.batches %" PRIu64 "\nmap.landmarks %" PRIu64 "\nmap.decode_errors %" PRIu64
+           "\nmap.sequence_ok %d\nmap.well_formed %d\n",
+           batches, landmarks, map_err, map_sequence_ok, map_well_formed);
     printf("log.damaged %" PRIu64 "\nlog.truncated %d\n", guard.damaged, guard.truncated);
+    if (map_out != NULL) {
+        FILE *f = fopen(map_out, "w");
+        if (f == NULL || vl_map_write_ply(f, points, landmarks) != 0 || fclose(f) != 0) {
+            fprintf(stderr, "vl_log_inspect: cannot write %s\n", map_out);
+            free(points);
+            return 2;
+        }
+    }
+    free(points);
     if (statuses > 0) {
         print_status("first", &first_status);
         print_status("last", &last_status);

@@ -1,6 +1,6 @@
 """The default LCM channel names, read from their one definition, platform/vl_channels.h.
 
-IMU, FEATURES, CALIBRATION, POSE, BOT_POSE and STATUS are the names every program uses by default;
+IMU, FEATURES, CALIBRATION, POSE, BOT_POSE, STATUS and LANDMARKS are the names every program uses by default;
 PREFIX is what the vislam ones share, so a tool that offers another prefix keeps the same suffixes.
 """
 
@@ -22,6 +22,7 @@ CALIBRATION = _NAMES["CALIBRATION"]
 POSE = _NAMES["POSE"]
 BOT_POSE = _NAMES["BOT_POSE"]
 STATUS = _NAMES["STATUS"]
+LANDMARKS = _NAMES["LANDMARKS"]
 PREFIX = os.path.commonprefix([IMU, FEATURES, CALIBRATION, POSE, STATUS])
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from . import ToolError, cli
 from .geometry import integrate_dead_reckoning, se3_inv
 from .metrics import CHI2_3DOF_95, associate, ate, consistency, reprojection_check, rpe, segment_differences
-from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, read_ground_truth, read_ply,
+from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, read_ground_truth, read_map,
                      read_tum, write_tum)
 
 EPILOG = """\
@@ -99,7 +99,8 @@ def build_parser():
                            epilog=EPILOG)
         p.add_argument("--estimate", required=True, metavar="SLAM.tum", help="SLAM trajectory (TUM)")
         p.add_argument("--dead-reckoning", metavar="DR.tum", help="dead-reckoning trajectory (TUM)")
-        p.add_argument("--map", metavar="MAP.ply", help="landmark map (PLY)")
+        p.add_argument("--map", metavar="MAP", help="landmark map: vislam-run --map's PLY, or an LCM log that "
+                       "recorded vislamd's VISLAM_LANDMARKS")
         _add_gt_args(p, required=False)
         p.add_argument("--title", default=None, help="figure title (default: file names, ATE if GT)")
         p.add_argument("--out", required=True, metavar="FIG.png" if name == "plot" else "RUN.gif")
@@ -239,7 +240,7 @@ def _scene(args):
         dr = read_tum(args.dead_reckoning)
         scene.dr_times, scene.dr_xyz = dr.times, dr.positions
     if args.map:
-        props = read_ply(args.map)
+        props = read_map(args.map)
         scene.landmarks = np.column_stack([props["x"], props["y"], props["z"]])
         scene.landmark_times = landmark_times_from_ply(props)
     ate_text = ""

@@ -1,5 +1,7 @@
-"""File formats: TUM and KITTI trajectories, PLY point maps, calibration from .npz or .lcmlog."""
+"""File formats: TUM and KITTI trajectories, point maps (PLY, or vislamd's VISLAM_LANDMARKS recorded), calibration
+from .npz or .lcmlog."""
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -199,6 +201,50 @@ def read_ply(path):
         raise ToolError(f"{path}: file too short for {count} vertices")
     rec = np.frombuffer(raw, dtype=dtype, count=count, offset=offset)
     return {name: rec[name].astype(float) for name in prop_names}
+
+
+def _map_from_lcmlog(path, channel=None):
+    """The landmarks of every vislam.landmarks_t event (on channel, else on any *LANDMARKS channel),
+    in the order received, as read_ply's columns of vislam-run's map."""
+    from .lcmtypes import load, load_lcm
+    vislam = load()
+    lcm = load_lcm()
+    try:
+        log = lcm.EventLog(str(path), "r")
+    except (IOError, OSError) as exc:
+        raise ToolError(f"cannot open LCM log {path}: {exc}") from exc
+    rows = []
+    for ev in log:
+        if not (ev.channel == channel if channel else ev.channel.endswith("LANDMARKS")):
+            continue
+        try:
+            msg = vislam.landmarks_t.decode(ev.data)
+        except ValueError:
+            continue  # same channel suffix, other type
+        for i in range(max(0, min(msg.count, vislam.landmarks_t.MAX_LANDMARKS))):
+            c = msg.covariance[i]  # xx, xy, xz, yy, yz, zz
+            rows.append((*msg.position[i], msg.id[i], math.sqrt(max(c[0] + c[3] + c[5], 0.0)),
+                         msg.observations[i], msg.first_utime[i] * 1e-6))
+    log.close()
+    if not rows:
+        raise ToolError(f"{path}: no vislam.landmarks_t event (record vislamd's VISLAM_LANDMARKS with lcm-logger)")
+    data = np.array(rows, dtype=float)
+    return {name: data[:, i].copy() for i, name in enumerate(("x", "y", "z", "id", "sigma", "observations",
+                                                               "first_time"))}
+
+
+def read_map(path, channel=None):
+    """A landmark map: vislam-run --map's PLY (any PLY with x, y, z), or an LCM log that recorded
+    vislamd's VISLAM_LANDMARKS (the same columns). {property name: float64 array}."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            magic = f.read(4)
+    except OSError as exc:
+        raise ToolError(f"cannot read map {path}: {exc.strerror}") from exc
+    if magic == b"\xed\xa1\xda\x01":
+        return _map_from_lcmlog(p, channel)
+    return read_ply(p)
 
 
 @dataclass

@@ -3,9 +3,11 @@
  *
  * Inputs: VISLAM_IMU (vislam.imu_t), VISLAM_FEATURES (vislam.stereo_frame_t),
  * VISLAM_CALIB (vislam.calibration_t). Outputs after every step: VISLAM_POSE
- * (vislam.pose_t) and POSE (bot_core.pose_t); VISLAM_STATUS (vislam.status_t)
- * once a second and at exit; optionally a TUM trajectory, one line per frame,
- * the same lines vislam-run writes.
+ * (vislam.pose_t) and POSE (bot_core.pose_t); after a step that marginalized
+ * landmarks, and at exit for the window's, VISLAM_LANDMARKS (vislam.landmarks_t,
+ * the map); VISLAM_STATUS (vislam.status_t) once a second and at exit;
+ * optionally a TUM trajectory, one line per frame, the same lines vislam-run
+ * writes.
  *
  * Real time: after start-up the message loop does not allocate. Messages are
  * received through lcm_subscribe's raw handler and decoded into static storage
@@ -59,6 +61,7 @@
 #include "bot_core_pose_t.h"
 #include "vislam_calibration_t.h"
 #include "vislam_imu_t.h"
+#include "vislam_landmarks_t.h"
 #include "vislam_pose_t.h"
 #include "vislam_status_t.h"
 #include "vislam_stereo_frame_t.h"
@@ -78,6 +81,7 @@
 #define RX_BATCH 64        /* datagrams one wake-up of the direct receiver reads at most */
 #define BUSY_POLL_MAX_US 1000000
 #define ENCODE_BUF 1024
+#define MAP_ENCODE_BUF 8192    /* one vislam.landmarks_t batch: 6.2 KB */
 #define STEP_SAMPLES_MAX 65536 /* --step-samples: frames kept (3.5 MiB; 1.8 h at 10 Hz), later ones counted */
 #define SUPERSEDE_WAIT_US 1000 /* --supersede-imu-poses: how long an IMU pose at a frame's due time waits for it */
 #define STEP_SAMPLES_BUF 65536 /* its stdio buffer, given at start-up so that writing it does not allocate */
@@ -88,7 +92,7 @@ typedef struct {
     const char *trajectory_path;
     const char *step_samples_path;
     const char *prefix;
-    const char *channel[6];
+    const char *channel[7];
     long budget_us;          /* 0: automatic */
     long busy_poll_us;       /* direct receive: spin on the socket this long before sleeping; 0: never */
     int lcm_receive_thread;  /* receive through liblcm's thread and pipe, not on the socket directly */
@@ -104,12 +108,14 @@ typedef struct {
     vl_worker_options_t worker;
 } options_t;
 
-enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_COUNT };
+enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_LANDMARKS, CH_COUNT };
 
-static const char *const channel_default[CH_COUNT] = {VL_CHANNEL_IMU,  VL_CHANNEL_FEATURES, VL_CHANNEL_CALIBRATION,
-                                                      VL_CHANNEL_POSE, VL_CHANNEL_BOT_POSE, VL_CHANNEL_STATUS};
-static const char *const channel_option[CH_COUNT] = {"--imu-channel",  "--features-channel", "--calib-channel",
-                                                     "--pose-channel", "--bot-pose-channel", "--status-channel"};
+static const char *const channel_default[CH_COUNT] = {VL_CHANNEL_IMU,      VL_CHANNEL_FEATURES, VL_CHANNEL_CALIBRATION,
+                                                      VL_CHANNEL_POSE,     VL_CHANNEL_BOT_POSE, VL_CHANNEL_STATUS,
+                                                      VL_CHANNEL_LANDMARKS};
+static const char *const channel_option[CH_COUNT] = {"--imu-channel",      "--features-channel", "--calib-channel",
+                                                     "--pose-channel",     "--bot-pose-channel", "--status-channel",
+                                                     "--landmarks-channel"};
 
 typedef enum { STEP_PROPAGATE = 0, STEP_UPDATE = 1 } step_kind_t;
 
@@ -132,6 +138,7 @@ typedef struct {
 /* The daemon's own counts; the inputs' are the session's (vl_session_counters). */
 typedef struct {
     uint64_t bot_poses_out, status_out, publish_errors;
+    uint64_t landmarks_out, landmark_batches_out; /* the map on VISLAM_LANDMARKS */
     /* --supersede-imu-poses: IMU poses not sent (a frame's pose of the same or a later time
        followed), and those held for a frame whose pose did not follow in time, sent late */
     uint64_t imu_poses_superseded, imu_poses_sent_late;
@@ -171,6 +178,9 @@ typedef struct {
     uint8_t pose_buf[ENCODE_BUF];
     uint8_t bot_buf[ENCODE_BUF];
     uint8_t status_buf[ENCODE_BUF];
+    vislam_landmarks_t map_msg; /* the batch being filled: landmarks the current step marginalized */
+    int64_t map_utime;          /* the time of the input being handled (the batch's utime) */
+    uint8_t map_buf[MAP_ENCODE_BUF];
     int have_trajectory;
     vl_trajectory_file_t trajectory;
 
@@ -219,8 +229,9 @@ static void usage(FILE *f)
             "usage: vislamd [options]\n"
             "Runs the vislam estimator on LCM messages: subscribes to " VL_CHANNEL_IMU ", " VL_CHANNEL_FEATURES
             " and\n" VL_CHANNEL_CALIBRATION ", publishes " VL_CHANNEL_POSE " and " VL_CHANNEL_BOT_POSE
-            " (bot_core.pose_t) after every step and\n" VL_CHANNEL_STATUS
-            " once a second. Stops on SIGINT or SIGTERM after the current step.\n"
+            " (bot_core.pose_t) after every step,\n" VL_CHANNEL_LANDMARKS
+            " (the map: landmarks leaving the window, and the window's at exit) and " VL_CHANNEL_STATUS
+            "\nonce a second. Stops on SIGINT or SIGTERM after the current step.\n"
             "\n"
             "  --config FILE           INI configuration on top of the defaults (see tools/vislam.ini);\n"
             "                          its [calibration] is used until the " VL_CHANNEL_CALIBRATION " message arrives\n"
@@ -271,6 +282,7 @@ static void usage(FILE *f)
             "  --pose-channel NAME     default " VL_CHANNEL_POSE "\n"
             "  --bot-pose-channel NAME default " VL_CHANNEL_BOT_POSE "\n"
             "  --status-channel NAME   default " VL_CHANNEL_STATUS "\n"
+            "  --landmarks-channel NAME default " VL_CHANNEL_LANDMARKS "\n"
             "  --quiet                 only warnings and errors on stderr (no periodic status line, no\n"
             "                          exit summary)\n"
             "  --print-config          print the effective configuration (INI, as vislam-run) and exit\n"
@@ -589,6 +601,23 @@ static void publish_held(daemon_t *d)
     publish_pose(d, VL_SESSION_STEP_PROPAGATE, d->held.utime, d->held.sequence, &d->held.pose);
 }
 
+/* The batch of landmarks on VISLAM_LANDMARKS, numbered, then emptied (entries past count stay zero). */
+static void publish_map(daemon_t *d)
+{
+    vislam_landmarks_t *m = &d->map_msg;
+    if (m->count == 0) {
+        return;
+    }
+    m->utime = d->map_utime;
+    m->sequence = (int64_t)d->n.landmark_batches_out;
+    m->first_index = (int64_t)d->n.landmarks_out;
+    const int len = vislam_landmarks_t_encode(d->map_buf, 0, (int)sizeof(d->map_buf), m);
+    publish(d, CH_LANDMARKS, d->map_buf, len);
+    d->n.landmark_batches_out++;
+    d->n.landmarks_out += (uint64_t)m->count;
+    memset(m, 0, sizeof(*m));
+}
+
 /*
  * Session sink: publish_pose, timed so that the step's own time can leave it out. With
  * --supersede-imu-poses an IMU pose is held when a frame of the same or a later time waits behind
@@ -621,6 +650,21 @@ static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t 
         d->held.pose = *pose;
     } else {
         publish_pose(d, step, utime, sequence, pose);
+    }
+    d->sink_ns += vl_clock_monotonic_ns() - t0;
+}
+
+/*
+ * Session sink for the map: each landmark leaving the window joins the batch that goes out after
+ * the step's pose (handle_input), or at once when the batch is full. Timed as an output.
+ */
+static void on_landmark(void *user, const vl_landmark_t *landmark)
+{
+    daemon_t *d = (daemon_t *)user;
+    const int64_t t0 = vl_clock_monotonic_ns();
+    if (vl_msg_add_landmark(landmark, &d->map_msg) == VL_MSG_ERR_COUNT) {
+        publish_map(d);
+        vl_msg_add_landmark(landmark, &d->map_msg);
     }
     d->sink_ns += vl_clock_monotonic_ns() - t0;
 }
@@ -730,6 +774,8 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
     ev->event_number = 0;
     ev->log_utime = rbuf->recv_utime;
     vl_log_event_decode(&d->decoder, kind, rbuf->data, (int)rbuf->data_size, ev);
+    d->map_utime =
+        kind == VL_LOG_EVENT_FRAME ? ev->frame.utime : (kind == VL_LOG_EVENT_IMU ? ev->imu.utime : d->map_utime);
     vl_status_t status = VL_OK;
     d->sink_ns = 0;
     d->pose_sent_ns = 0;
@@ -760,6 +806,7 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
         vl_warm_note_frame(&d->warm, utime, d->handler_mono_us);
     }
     finish_step(d, step == VL_SESSION_STEP_UPDATE ? STEP_UPDATE : STEP_PROPAGATE, t0, utime);
+    publish_map(d); /* after the pose and outside the step's time: the map is not what waits on it */
     d->free_ns = vl_clock_realtime_ns();
 }
 
@@ -1009,10 +1056,13 @@ static int warm_up(daemon_t *d)
     vl_msg_from_pose(&p, VISLAM_POSE_T_SOURCE_IMU, 0, &d->pose_msg);
     vl_msg_from_pose_bot(&p, &d->bot_msg);
     memset(&d->status_msg, 0, sizeof(d->status_msg));
+    memset(&d->map_msg, 0, sizeof(d->map_msg));
     if (vislam_pose_t_encoded_size(&d->pose_msg) > ENCODE_BUF ||
         bot_core_pose_t_encoded_size(&d->bot_msg) > ENCODE_BUF ||
-        vislam_status_t_encoded_size(&d->status_msg) > ENCODE_BUF) {
-        fprintf(stderr, "vislamd: internal error: an encoded message exceeds %d bytes\n", ENCODE_BUF);
+        vislam_status_t_encoded_size(&d->status_msg) > ENCODE_BUF ||
+        vislam_landmarks_t_encoded_size(&d->map_msg) > MAP_ENCODE_BUF ||
+        vislam_landmarks_t_encode(d->map_buf, 0, MAP_ENCODE_BUF, &d->map_msg) < 0) {
+        fprintf(stderr, "vislamd: internal error: an encoded message exceeds its buffer\n");
         return -1;
     }
     char line[VL_TRAJECTORY_LINE_MAX];
@@ -1089,6 +1139,8 @@ static void print_summary(const daemon_t *d)
     }
     fprintf(stderr, "; publish errors %" PRIu64 "; trajectory write errors %" PRIu64 "\n", d->n.publish_errors,
             d->n.trajectory_errors);
+    fprintf(stderr, "  map: %" PRIu64 " landmarks in %" PRIu64 " batches on %s\n", d->n.landmarks_out,
+            d->n.landmark_batches_out, d->channel[CH_LANDMARKS]);
     if (d->rx.fd >= 0) {
         /* What the direct receiver could not hand on is counted, never dropped silently. */
         fprintf(stderr,
@@ -1197,6 +1249,7 @@ int main(int argc, char **argv)
     so.config_has_calibration = d->info.has_calibration;
     so.override_log = d->info.override_log;
     so.callbacks.on_pose = on_pose;
+    so.callbacks.on_landmark = on_landmark;
     so.callbacks.on_event = on_event;
     so.callbacks.user = d;
     if (vl_session_init(&d->session, &g_est, &d->cfg, &so) != VL_OK) {
@@ -1246,9 +1299,9 @@ int main(int argc, char **argv)
         publish_status(d);
     }
     if (!d->opt.quiet) {
-        fprintf(stderr, "vislamd: ready: %s %s %s -> %s %s %s (lcm %s)%s\n", d->channel[CH_IMU],
+        fprintf(stderr, "vislamd: ready: %s %s %s -> %s %s %s %s (lcm %s)%s\n", d->channel[CH_IMU],
                 d->channel[CH_FEATURES], d->channel[CH_CALIB], d->channel[CH_POSE], d->channel[CH_BOT_POSE],
-                d->channel[CH_STATUS], d->opt.lcm_url != NULL ? d->opt.lcm_url : "default",
+                d->channel[CH_LANDMARKS], d->channel[CH_STATUS], d->opt.lcm_url != NULL ? d->opt.lcm_url : "default",
                 vl_session_initialized(&d->session) ? "" : "; waiting for a calibration");
     }
     snprintf(d->notify_buf, sizeof(d->notify_buf), "READY=1\nSTATUS=ready: %s",
@@ -1325,6 +1378,8 @@ int main(int argc, char **argv)
     if (d->held.have) {
         publish_held(d); /* the frame behind it was not read */
     }
+    vl_session_flush(&d->session); /* the window's landmarks join the map: none is lost at exit */
+    publish_map(d);
     publish_status(d);
     vl_awake_stop(&d->awake); /* its final count in the summary */
     if (!d->opt.quiet) {
