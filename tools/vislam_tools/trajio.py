@@ -203,16 +203,24 @@ def read_ply(path):
     return {name: rec[name].astype(float) for name in prop_names}
 
 
-def _map_from_lcmlog(path, channel=None):
-    """The landmarks of every vislam.landmarks_t event (on channel, else on any *LANDMARKS channel),
-    in the order received, as read_ply's columns of vislam-run's map."""
+_LCM_SYNC = b"\xed\xa1\xda\x01"  # the first bytes of every LCM log event
+
+
+def _open_lcmlog(path):
+    """The generated `vislam` types and an lcm.EventLog reading path, or ToolError."""
     from .lcmtypes import load, load_lcm
     vislam = load()
     lcm = load_lcm()
     try:
-        log = lcm.EventLog(str(path), "r")
+        return vislam, lcm.EventLog(str(path), "r")
     except (IOError, OSError) as exc:
         raise ToolError(f"cannot open LCM log {path}: {exc}") from exc
+
+
+def _map_from_lcmlog(path, channel=None):
+    """The landmarks of every vislam.landmarks_t event (on channel, else on any *LANDMARKS channel),
+    in the order received, as read_ply's columns of vislam-run's map."""
+    vislam, log = _open_lcmlog(path)
     rows = []
     for ev in log:
         if not (ev.channel == channel if channel else ev.channel.endswith("LANDMARKS")):
@@ -242,7 +250,7 @@ def read_map(path, channel=None):
             magic = f.read(4)
     except OSError as exc:
         raise ToolError(f"cannot read map {path}: {exc.strerror}") from exc
-    if magic == b"\xed\xa1\xda\x01":
+    if magic == _LCM_SYNC:
         return _map_from_lcmlog(p, channel)
     return read_ply(p)
 
@@ -289,13 +297,7 @@ def _calibration_from_npz(path):
 
 
 def _calibration_from_lcmlog(path):
-    from .lcmtypes import load, load_lcm
-    vislam = load()
-    lcm = load_lcm()
-    try:
-        log = lcm.EventLog(str(path), "r")
-    except (IOError, OSError) as exc:
-        raise ToolError(f"cannot open LCM log {path}: {exc}") from exc
+    vislam, log = _open_lcmlog(path)
     calib = None
     imu_channel = None
     step_times = []
@@ -327,7 +329,7 @@ def load_calibration(path):
         return _calibration_from_npz(p)
     with open(p, "rb") as f:
         magic = f.read(4)
-    if magic == b"\xed\xa1\xda\x01" or p.suffix in (".lcmlog", ".log"):
+    if magic == _LCM_SYNC or p.suffix in (".lcmlog", ".log"):
         return _calibration_from_lcmlog(p)
     raise ToolError(f"{path}: calibration must come from a seed .npz or an LCM log (.lcmlog)")
 
