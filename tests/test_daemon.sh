@@ -22,7 +22,8 @@
 #   5. calibration from the config file alone (no VISLAM_CALIB on the wire): the daemon estimates,
 #      and equals vislam-run with the same config.
 #   6. the same log replayed twice into one daemon: the second pass is a new timeline,
-#      the daemon re-initializes within a few inputs, says so in VISLAM_STATUS, and tracks again.
+#      the daemon re-initializes within a few inputs, says so in VISLAM_STATUS, and tracks again;
+#      the map's batches of the second pass are in world 1.
 #   7. a recording of run A by lcm-logger (inputs and the daemon's outputs) replayed: by default
 #      only the inputs go out, the recorded poses and statuses are skipped and counted;
 #      --all-channels sends them too (and the replay's own pose subscription receives them).
@@ -214,7 +215,7 @@ check "daemon C trajectory byte-identical to vislam-run's with the same config" 
 
 # ---- run D: the same log twice into one daemon -------------------------------------------------
 echo "== run D: the log replayed twice into one daemon (a new timeline 20 s back)"
-start_recording d '(VISLAM_POSE|VISLAM_STATUS)' "$OUT/d.daemon.err" -- \
+start_recording d '(VISLAM_POSE|VISLAM_STATUS|VISLAM_LANDMARKS)' "$OUT/d.daemon.err" -- \
   "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/d.tum" --quiet
 "$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 8 --timeout-ms 5000 \
   --quiet 2>"$OUT/d1.replay.err"
@@ -233,6 +234,9 @@ check "a status said TIMELINE_CHANGE (32) and TIME_REFUSED (16)" \
 check "tracking again: every frame from the third of the second pass has a trajectory line (200 + 198)" \
   eq "$(wc -l <"$OUT/d.tum")" 398
 check "every published pose is finite" eq "$(value "$D" pose.non_finite)" 0
+check "the map: the second pass's landmarks in world 1, worlds in order, as many as the final status' mapped" \
+  eq "$(value "$D" map.world_last)/$(value "$D" map.worlds_ordered)/$(value "$D" map.sequence_ok)/$(value "$D" map.landmarks)" \
+  "1/1/1/$(value "$D" status.last.landmarks_mapped)"
 check "the final status is healthy again (0 or overrun)" \
   test \( "$(value "$D" status.last.health)" = 0 -o "$(value "$D" status.last.health)" = 2 \)
 

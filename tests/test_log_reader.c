@@ -646,6 +646,7 @@ void test_vl_msg_landmark_batch_round_trip_and_capacity(void)
     TEST_ASSERT_EQUAL_UINT32(7, back.observations);
     TEST_ASSERT_EQUAL_INT64(lm.first_utime, back.first_utime);
     TEST_ASSERT_EQUAL_INT64(lm.last_utime, back.last_utime);
+    batch.world = 2;
     /* Through the wire: encode, decode, the same entry. */
     static uint8_t buf[8192];
     static vislam_landmarks_t decoded;
@@ -654,6 +655,7 @@ void test_vl_msg_landmark_batch_round_trip_and_capacity(void)
     TEST_ASSERT_TRUE(vl_msg_decoded_whole(vislam_landmarks_t_decode(buf, 0, len, &decoded), len));
     TEST_ASSERT_EQUAL_INT(VL_MSG_OK, vl_msg_to_landmark(&decoded, VISLAM_LANDMARKS_T_MAX_LANDMARKS - 1, &back));
     TEST_ASSERT_EQUAL_INT32(41 + VISLAM_LANDMARKS_T_MAX_LANDMARKS - 1, back.id);
+    TEST_ASSERT_EQUAL_INT64(2, decoded.world);
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(cov, back.covariance, 9);
     /* Entries outside the batch, and a corrupt count, are refused. */
     TEST_ASSERT_EQUAL_INT(VL_MSG_ERR_COUNT, vl_msg_to_landmark(&batch, -1, &back));

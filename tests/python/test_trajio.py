@@ -160,6 +160,7 @@ def test_ply_errors(tmp_path, text, match):
 def _landmarks_batch(vislam, first, count, sequence):
     m = vislam.landmarks_t()
     m.utime, m.sequence, m.first_index, m.count = 1_317_384_000_100_000 + sequence, sequence, first, count
+    m.world = sequence
     for i in range(count):
         m.id[i] = first + i
         m.position[i] = [1.0 + i, -2.0, 30.0 + 0.5 * i]
@@ -188,6 +189,7 @@ def test_map_from_a_recording_of_vislamd(tmp_path, vislam_types):
     np.testing.assert_allclose(m["sigma"], 5.0)
     np.testing.assert_array_equal(m["observations"], [3, 4, 5, 3, 4])
     np.testing.assert_allclose(m["first_time"], 1_317_384_000.0 + 0.1 * np.array([0, 1, 2, 0, 1]))
+    np.testing.assert_array_equal(m["world"], [0, 0, 0, 1, 1])
     with pytest.raises(ToolError, match="no vislam.landmarks_t"):
         read_map(path, channel="CAR1_LANDMARKS")  # no such channel in the recording
     ply = tmp_path / "m.ply"

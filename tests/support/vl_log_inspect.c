@@ -16,6 +16,7 @@
  *   map.sequence_ok 1|0            batch sequences are 0, 1, 2, ... and each first_index counts the
  *                                  landmarks of the batches before it
  *   map.well_formed 1|0            every batch holds 1..MAX_LANDMARKS entries and zeros past them
+ *   map.world_last W / map.worlds_ordered 1|0   the last batch's world; worlds never go back
  *   log.damaged N / log.truncated 0|1   damaged spots in the recorded log itself (vl_log_guard)
  * With --map-out, the landmarks in the order received as the PLY vislam-run --map writes.
  */
@@ -164,7 +165,8 @@ int main(int argc, char **argv)
     static vislam_status_t status, first_status, last_status;
     static vislam_landmarks_t batch;
     uint64_t batches = 0, landmarks = 0, map_err = 0;
-    int map_sequence_ok = 1, map_well_formed = 1;
+    int map_sequence_ok = 1, map_well_formed = 1, worlds_ordered = 1;
+    int64_t world_last = 0;
     vl_map_point_t *points = NULL;
     size_t capacity = 0;
     uint64_t poses = 0, imu = 0, features = 0, pose_err = 0, bots = 0, bot_err = 0, statuses = 0, status_err = 0;
@@ -235,6 +237,10 @@ int main(int argc, char **argv)
                 if (batch.count < 1 || batch.count > VISLAM_LANDMARKS_T_MAX_LANDMARKS || !batch_tail_zero(&batch)) {
                     map_well_formed = 0;
                 }
+                if (batch.world < world_last) {
+                    worlds_ordered = 0;
+                }
+                world_last = batch.world;
                 vl_landmark_t lm;
                 for (int32_t i = 0; vl_msg_to_landmark(&batch, i, &lm) == VL_MSG_OK; ++i) {
                     if (landmarks == capacity) {
@@ -282,8 +288,8 @@ int main(int argc, char **argv)
         printf("pose.features_after %" PRIu64 "\n", features_after);
     }
     printf("map.batches %" PRIu64 "\nmap.landmarks %" PRIu64 "\nmap.decode_errors %" PRIu64
-           "\nmap.sequence_ok %d\nmap.well_formed %d\n",
-           batches, landmarks, map_err, map_sequence_ok, map_well_formed);
+           "\nmap.sequence_ok %d\nmap.well_formed %d\nmap.world_last %" PRId64 "\nmap.worlds_ordered %d\n",
+           batches, landmarks, map_err, map_sequence_ok, map_well_formed, world_last, worlds_ordered);
     printf("log.damaged %" PRIu64 "\nlog.truncated %d\n", guard.damaged, guard.truncated);
     if (map_out != NULL) {
         FILE *f = fopen(map_out, "w");

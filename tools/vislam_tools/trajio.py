@@ -219,7 +219,8 @@ def _open_lcmlog(path):
 
 def _map_from_lcmlog(path, channel=None):
     """The landmarks of every vislam.landmarks_t event (on channel, else on any *LANDMARKS channel),
-    in the order received, as read_ply's columns of vislam-run's map."""
+    in the order received, as read_ply's columns of vislam-run's map, and each one's world (the
+    estimator's re-initializations before it: after one, positions are in another frame)."""
     vislam, log = _open_lcmlog(path)
     rows = []
     for ev in log:
@@ -232,13 +233,13 @@ def _map_from_lcmlog(path, channel=None):
         for i in range(max(0, min(msg.count, vislam.landmarks_t.MAX_LANDMARKS))):
             c = msg.covariance[i]  # xx, xy, xz, yy, yz, zz
             rows.append((*msg.position[i], msg.id[i], math.sqrt(max(c[0] + c[3] + c[5], 0.0)),
-                         msg.observations[i], msg.first_utime[i] * 1e-6))
+                         msg.observations[i], msg.first_utime[i] * 1e-6, msg.world))
     log.close()
     if not rows:
         raise ToolError(f"{path}: no vislam.landmarks_t event (record vislamd's VISLAM_LANDMARKS with lcm-logger)")
     data = np.array(rows, dtype=float)
     return {name: data[:, i].copy() for i, name in enumerate(("x", "y", "z", "id", "sigma", "observations",
-                                                               "first_time"))}
+                                                               "first_time", "world"))}
 
 
 def read_map(path, channel=None):
