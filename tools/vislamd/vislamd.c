@@ -86,13 +86,22 @@
 #define SUPERSEDE_WAIT_US 1000 /* --supersede-imu-poses: how long an IMU pose at a frame's due time waits for it */
 #define STEP_SAMPLES_BUF 65536 /* its stdio buffer, given at start-up so that writing it does not allocate */
 
+enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_LANDMARKS, CH_COUNT };
+
+static const char *const channel_default[CH_COUNT] = {VL_CHANNEL_IMU,      VL_CHANNEL_FEATURES, VL_CHANNEL_CALIBRATION,
+                                                      VL_CHANNEL_POSE,     VL_CHANNEL_BOT_POSE, VL_CHANNEL_STATUS,
+                                                      VL_CHANNEL_LANDMARKS};
+static const char *const channel_option[CH_COUNT] = {"--imu-channel",      "--features-channel", "--calib-channel",
+                                                     "--pose-channel",     "--bot-pose-channel", "--status-channel",
+                                                     "--landmarks-channel"};
+
 typedef struct {
     const char *config_path;
     const char *lcm_url;
     const char *trajectory_path;
     const char *step_samples_path;
     const char *prefix;
-    const char *channel[7];
+    const char *channel[CH_COUNT];
     long budget_us;          /* 0: automatic */
     long busy_poll_us;       /* direct receive: spin on the socket this long before sleeping; 0: never */
     int lcm_receive_thread;  /* receive through liblcm's thread and pipe, not on the socket directly */
@@ -107,15 +116,6 @@ typedef struct {
     int print_config;
     vl_worker_options_t worker;
 } options_t;
-
-enum { CH_IMU, CH_FEATURES, CH_CALIB, CH_POSE, CH_BOT_POSE, CH_STATUS, CH_LANDMARKS, CH_COUNT };
-
-static const char *const channel_default[CH_COUNT] = {VL_CHANNEL_IMU,      VL_CHANNEL_FEATURES, VL_CHANNEL_CALIBRATION,
-                                                      VL_CHANNEL_POSE,     VL_CHANNEL_BOT_POSE, VL_CHANNEL_STATUS,
-                                                      VL_CHANNEL_LANDMARKS};
-static const char *const channel_option[CH_COUNT] = {"--imu-channel",      "--features-channel", "--calib-channel",
-                                                     "--pose-channel",     "--bot-pose-channel", "--status-channel",
-                                                     "--landmarks-channel"};
 
 typedef enum { STEP_PROPAGATE = 0, STEP_UPDATE = 1 } step_kind_t;
 
