@@ -195,12 +195,10 @@ vl_msg_status_t vl_msg_to_landmark(const vislam_landmarks_t *batch, int32_t inde
     for (int k = 0; k < 3; ++k) {
         out->position[k] = batch->position[index][k];
     }
-    for (int r = 0; r < 3; ++r) {
-        for (int c = r; c < 3; ++c) {
-            const int k = r == 0 ? c : (r == 1 ? 2 + c : 5); /* the upper triangle's index of (r, c) */
-            out->covariance[3 * r + c] = batch->covariance[index][k];
-            out->covariance[3 * c + r] = batch->covariance[index][k];
-        }
+    for (int k = 0; k < 6; ++k) {
+        const int rc = k_upper[k]; /* (r, c) = (rc / 3, rc % 3), and its mirror (c, r) */
+        out->covariance[rc] = batch->covariance[index][k];
+        out->covariance[3 * (rc % 3) + rc / 3] = batch->covariance[index][k];
     }
     out->observations = (uint32_t)batch->observations[index];
     out->first_utime = batch->first_utime[index];
