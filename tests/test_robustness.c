@@ -25,6 +25,22 @@ static void test_config(vl_config_t *cfg)
     vl_test_kitti_calibration(&cfg->calibration, 1);
 }
 
+/* The map sink: how many landmarks it received, and their observation times' span. */
+static uint32_t mapped;
+static int64_t mapped_first_utime, mapped_last_utime;
+
+static void count_sink(void *user, const vl_landmark_t *landmark)
+{
+    (void)user;
+    if (mapped == 0 || landmark->first_utime < mapped_first_utime) {
+        mapped_first_utime = landmark->first_utime;
+    }
+    if (mapped == 0 || landmark->last_utime > mapped_last_utime) {
+        mapped_last_utime = landmark->last_utime;
+    }
+    mapped++;
+}
+
 /* A frame of a vehicle standing at the identity pose, seeing NUM_POINTS fixed points ahead. */
 static void make_frame(const vl_config_t *cfg, vl_stereo_frame_t *f, int64_t utime)
 {
@@ -252,10 +268,12 @@ static void check_new_timeline(int64_t shift, vl_status_t refusal)
 {
     vl_config_t cfg;
     test_config(&cfg);
+    cfg.landmark_sink = count_sink;
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 20);
     const uint32_t window = vl_window_size(&est);
     TEST_ASSERT_TRUE(window > 0);
+    mapped = 0;
 
     const int64_t start = T0 + 20 * STEP + shift;
     int64_t reset_utime = 0;
@@ -276,7 +294,12 @@ static void check_new_timeline(int64_t shift, vl_status_t refusal)
     TEST_ASSERT_EQUAL_UINT64(1, c->timeline_changes);
     TEST_ASSERT_EQUAL_UINT64(1, c->resets);
     TEST_ASSERT_EQUAL_UINT64(0, c->divergence_resets);
-    TEST_ASSERT_EQUAL_UINT64(window, c->landmarks_discarded);
+    /* The old world's window went to the map before the restart, nothing dropped. */
+    TEST_ASSERT_EQUAL_UINT64(0, c->landmarks_discarded);
+    TEST_ASSERT_EQUAL_UINT32(window, mapped);
+    TEST_ASSERT_EQUAL_UINT64(window, c->landmarks_marginalized);
+    TEST_ASSERT_TRUE(mapped_first_utime >= T0 && mapped_last_utime <= T0 + 19 * STEP);
+    mapped = 0;
     TEST_ASSERT_EQUAL_UINT64(21, c->imu_accepted); /* 20 before, then the one that started the new timeline */
 
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&twin, &cfg));
@@ -656,15 +679,18 @@ void test_vl_reset_keeps_configuration_and_counters(void)
     vl_config_t cfg;
     test_config(&cfg);
     cfg.max_landmarks = 7;
+    cfg.landmark_sink = count_sink;
     TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_reset(NULL));
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 3);
+    mapped = 0;
     const uint64_t frames = vl_get_counters(&est)->frames_accepted;
     const uint32_t window = vl_window_size(&est);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_reset(&est));
     TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
     TEST_ASSERT_EQUAL_UINT64(frames, vl_get_counters(&est)->frames_accepted);
-    TEST_ASSERT_EQUAL_UINT64(window, vl_get_counters(&est)->landmarks_discarded);
+    TEST_ASSERT_EQUAL_UINT64(0, vl_get_counters(&est)->landmarks_discarded);
+    TEST_ASSERT_EQUAL_UINT32(window, mapped); /* the window went to the map first */
     TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->resets);
     TEST_ASSERT_EQUAL_UINT32(7, est.cfg.max_landmarks);
     /* Any time may start again: the clock went with the state. */

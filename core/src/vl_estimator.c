@@ -72,10 +72,11 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
 }
 
 /*
- * Back to vl_init's state with the same configuration, counters kept. The
- * window's landmarks are dropped, not mapped: after a divergence they are
- * corrupt, and after a new timeline they belong to a world the restart does
- * not share. After a divergence (keep_world) the inputs that follow continue
+ * Back to vl_init's state with the same configuration, counters kept. A new
+ * timeline (and vl_reset) ends the world the window's landmarks were estimated
+ * in: they go to the sink first, in that world, as at the end of a run. After a
+ * divergence they are corrupt and are dropped (landmarks_discarded), not mapped.
+ * After a divergence (keep_world) the inputs that follow continue
  * as before: the time bookkeeping and the held IMU sample are kept, and so is
  * the world frame, the estimator starting at the last sound pose (before the
  * input that diverged; that input's motion is lost) with that pose's
@@ -85,6 +86,9 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
  */
 static void reset_state(vl_estimator_t *e, int keep_world)
 {
+    if (!keep_world) {
+        (void)vl_flush_landmarks(e);
+    }
     const vl_estimator_t *old = e; /* the fields are copied out before init_state clears them */
     const vl_config_t cfg = old->cfg;
     vl_counters_t counters = old->counters;

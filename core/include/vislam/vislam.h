@@ -131,7 +131,8 @@ typedef struct {
     int64_t last_utime;    /**< us */
 } vl_landmark_t;
 
-/** Receives each landmark leaving the window. Called from vl_update / vl_flush_landmarks. */
+/** Receives each landmark leaving the window. Called from vl_update and vl_flush_landmarks, and from
+ * vl_propagate, vl_update or vl_reset when a new timeline or a reset ends the landmarks' world. */
 typedef void (*vl_landmark_sink_fn)(void *user, const vl_landmark_t *landmark);
 
 /** Log severities for the injected logger. */
@@ -258,7 +259,7 @@ typedef struct {
     X(uint64_t, timeline_changes, "re-initializations on a new timeline")                                           \
     X(uint64_t, divergence_resets, "re-initializations after divergence")                                           \
     X(uint64_t, resets, "every re-initialization (those two and vl_reset)")                                         \
-    X(uint64_t, landmarks_discarded, "window landmarks dropped by a reset (not handed to the sink)")                \
+    X(uint64_t, landmarks_discarded, "window landmarks dropped by a divergence reset (not handed to the sink)")     \
     X(uint64_t, imu_implausible, "IMU samples beyond max_speed or max_rotation_rate")                               \
     X(uint64_t, observations_implausible, "pixels outside the image (with margin) or disparity over max_disparity") \
     X(uint64_t, imu_silences, "times the IMU fell silent for longer than max_imu_silence")                          \
@@ -632,8 +633,8 @@ vl_status_t vl_get_landmarks(const vl_estimator_t *e, vl_landmark_t *out, size_t
 
 /**
  * Re-initializes the estimator as vl_init would with its current configuration
- * (calibration included), keeping the counters; window landmarks are dropped
- * (landmarks_discarded), not handed to the sink. Counted in resets.
+ * (calibration included), keeping the counters; the window's landmarks go to the
+ * sink first (vl_flush_landmarks), in the world they were estimated in. Counted in resets.
  */
 vl_status_t vl_reset(vl_estimator_t *e);
 
