@@ -27,10 +27,13 @@
 #   7. a recording of run A by lcm-logger (inputs and the daemon's outputs) replayed: by default
 #      only the inputs go out, the recorded poses and statuses are skipped and counted;
 #      --all-channels sends them too (and the replay's own pose subscription receives them).
+#   8. --stats-json: the daemon's summary as JSON: its step counts and percentiles, its receiver's
+#      counts, its map count, and core counters equal to vislam-run --stats-json's on the same log;
+#      tools/bench.sh's daemon table reads it.
 # Synchronization waits on what the daemon publishes (its statuses, read back from the recording
 # or awaited by vislam-replay --wait-for), never on fixed delays; every number checked comes from
-# recorded messages, the replay's JSON summary, the trajectory files or the allocation counter's
-# own report, never from the daemon's stderr.
+# recorded messages, the replay's JSON summary, the daemon's --stats-json, the trajectory files or
+# the allocation counter's own report, never from the daemon's stderr.
 # Exit 77 (CTest skip) when a private network namespace or lcm-logger is unavailable.
 # No -e: every check runs and is reported; the exit status counts the failed ones.
 set -uo pipefail
@@ -45,6 +48,7 @@ ALLOC_SO=$2
 INSPECT=$3
 SRC=$4
 LOG="$SRC/data/sample.lcmlog"
+PYTHON=${VISLAM_PYTHON:-python3}
 
 # shellcheck source=support/vl_record.sh
 source "$(dirname "$0")/support/vl_record.sh"
@@ -73,7 +77,7 @@ start_recording() {
 }
 START=$SECONDS
 echo "== offline reference: vislam-run"
-"$BIN/vislam-run" "$LOG" --trajectory "$OUT/offline.tum" --map "$OUT/offline.ply" --quiet
+"$BIN/vislam-run" "$LOG" --trajectory "$OUT/offline.tum" --map "$OUT/offline.ply" --stats-json "$OUT/offline.stats.json" --quiet
 check "vislam-run succeeds" eq $? 0
 FRAMES=$(wc -l <"$OUT/offline.tum")
 check "offline trajectory has 200 lines" eq "$FRAMES" 200
@@ -83,7 +87,7 @@ LAST_UTIME=$(tail -n 1 "$OUT/offline.tum" | awk '{ split($1, t, "."); printf "%d
 echo "== run A: vislamd + vislam-replay --lockstep --speed 4"
 start_recording a '(VISLAM_IMU|VISLAM_FEATURES|VISLAM_CALIB|VISLAM_POSE|POSE|VISLAM_STATUS|VISLAM_LANDMARKS)' "$OUT/a.daemon.err" -- \
   env VL_ALLOC_REPORT="$OUT/a.alloc" ${ALLOC_SO:+LD_PRELOAD="$ALLOC_SO"} "$BIN/vislamd" --lcm-url "$URL" --trajectory "$OUT/a.tum" \
-  --step-samples "$OUT/a.steps"
+  --step-samples "$OUT/a.steps" --stats-json "$OUT/a.stats.json"
 check "run A: the daemon's first status recorded before any input" eq $? 0
 "$BIN/vislam-replay" "$LOG" --lcm-url "$URL" --lockstep --speed 4 --timeout-ms 5000 \
   --summary-json "$OUT/a.replay.json" 2>"$OUT/a.replay.err"
@@ -102,8 +106,24 @@ check "VISLAM_POSE sequence numbers 0..399 in order" eq "$(value "$A" pose.seque
 check "POSE (bot_core.pose_t): one per VISLAM_POSE, same utime and position" eq "$(value "$A" bot.count)/$(value "$A" bot.matches_pose)" "400/1"
 check "no undecodable message" eq "$(value "$A" pose.decode_errors)/$(value "$A" bot.decode_errors)/$(value "$A" status.decode_errors)" "0/0/0"
 check "replay counted 400 poses" grep -q '"poses_received": 400' "$OUT/a.replay.json"
-check "daemon A's receiver: every input handed on, nothing dropped" awk '/lcm receive: messages/ {
-  gsub(",", ""); ok = ($4 >= 400 && $11 == 0 && $13 == 0)} END {exit !ok}' "$OUT/a.daemon.err"
+# the daemon's --stats-json, flattened to "key value" lines (nested keys joined by dots)
+"$PYTHON" - "$OUT/a.stats.json" "$OUT/offline.stats.json" >"$OUT/a.stats" <<'PY'
+import json, sys
+daemon, offline = (json.load(open(p)) for p in sys.argv[1:3])
+def flat(d, prefix=""):
+    for k, v in d.items():
+        if isinstance(v, dict):
+            yield from flat(v, prefix + k + ".")
+        else:
+            yield prefix + k, v
+for k, v in flat(daemon):
+    print(k, v)
+print("core_counters_equal_offline", int(daemon["core_counters"] == offline["core_counters"]))
+PY
+check "--stats-json written and parsed" eq $? 0
+J=$OUT/a.stats
+check "daemon A's receiver (--stats-json): every input handed on, nothing dropped" \
+  test "$(value "$J" daemon.lcm_rx_messages)" -ge 400 -a "$(value "$J" daemon.lcm_rx_fragments_dropped)/$(value "$J" daemon.lcm_rx_malformed)" = "0/0"
 check "status published at least twice, wall-clock utime increasing" test "$(value "$A" status.count)" -ge 2 -a "$(value "$A" status.utime_increasing)" = 1
 check "first status: waiting for calibration" eq "$(value "$A" status.first.health)" 1
 check "final status: imu_in 200, frames_in 200, poses_out 400, rejected 0, steps 400" \
@@ -138,6 +158,24 @@ check "VISLAM_LANDMARKS: as many landmarks as the final status' landmarks_mapped
   eq "$MAPPED" "$(value "$A" status.last.landmarks_mapped)"
 check "the daemon's map (window flushed at exit) byte-identical to vislam-run --map's" \
   cmp "$OUT/a.map.ply" "$OUT/offline.ply"
+
+# (8) --stats-json
+check "--stats-json: 400 steps (200 propagations, 200 updates), the histograms' counts the same, SIGTERM" \
+  eq "$(value "$J" steps)/$(value "$J" step_latency.all.count)/$(value "$J" step_latency.propagation.count)/$(value "$J" step_latency.update.count)/$(value "$J" stopped_by)" \
+  "400/400/200/200/SIGTERM"
+check "--stats-json: 0 < median <= p99 <= p99.9 <= max of all steps" \
+  test 0 -lt "$(value "$J" step_latency.all.median_us)" -a "$(value "$J" step_latency.all.median_us)" -le "$(value "$J" step_latency.all.p99_us)" \
+  -a "$(value "$J" step_latency.all.p99_us)" -le "$(value "$J" step_latency.all.p999_us)" \
+  -a "$(value "$J" step_latency.all.p999_us)" -le "$(value "$J" step_latency.all.max_us)"
+check "--stats-json: budget and overruns as the final status has them, the sensor period" \
+  eq "$(value "$J" budget_us)/$(value "$J" overruns)/$(value "$J" budget_source)" "$(value "$A" status.last.budget_us)/$OVERRUNS/sensor_period"
+check "--stats-json: landmarks published = the recorded map's, poses out 400, 200 trajectory lines" \
+  eq "$(value "$J" daemon.landmarks_out)/$(value "$J" session.poses_out)/$(value "$J" daemon.trajectory_lines)" "$MAPPED/400/200"
+check "--stats-json: the core's counters equal vislam-run --stats-json's" eq "$(value "$J" core_counters_equal_offline)" 1
+printf 'sample\t%s\t%s\n' "$OUT/a.stats.json" "$OUT/a.replay.json" >"$OUT/bench.rows"
+PYTHONPATH="$SRC/tools" "$PYTHON" -m vislam_tools.bench_report daemon "$OUT/bench.rows" >"$OUT/bench.md"
+check "tools/bench.sh's daemon table from --stats-json: 400 steps, the overruns, 200 of 200 poses back" \
+  grep -Eq "^\| sample \| 400 \| $(value "$J" budget_us) \| $OVERRUNS \| [0-9]+ / [0-9]+ / [0-9]+ / [0-9]+ \|.*\| 200 of 200 \|" "$OUT/bench.md"
 
 # (4) allocations after start-up
 if [ -n "$ALLOC_SO" ]; then

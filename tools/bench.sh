@@ -43,7 +43,8 @@ daemon_inner() {
   ip link set lo up multicast on || return 3
   ip route add 224.0.0.0/4 dev lo || return 3
   [ -n "$alloc" ] && preload=(env VL_ALLOC_REPORT="$prefix.vislamd.alloc" LD_PRELOAD="$alloc")
-  daemon_cmd=("${preload[@]}" "$bin/vislamd" --lcm-url "$LCM_URL" --trajectory "$prefix.tum" "$@")
+  daemon_cmd=("${preload[@]}" "$bin/vislamd" --lcm-url "$LCM_URL" --trajectory "$prefix.tum"
+    --stats-json "$prefix.vislamd.json" "$@")
   replay_cmd=("$bin/vislam-replay" "$log" --lcm-url "$LCM_URL" --lockstep --speed "$speed"
     --wait-for VISLAM_STATUS --timeout-ms 5000 --summary-json "$prefix.replay.json")
   {
@@ -74,7 +75,8 @@ soak_inner() {
   local preload=()
   [ -n "$alloc" ] && preload=(env VL_ALLOC_REPORT="$out/vislamd.alloc" LD_PRELOAD="$alloc")
   rm -f "$out/soak.tum"
-  "${preload[@]}" "$bin/vislamd" --lcm-url "$LCM_URL" --trajectory "$out/soak.tum" 2>"$out/vislamd.log" &
+  "${preload[@]}" "$bin/vislamd" --lcm-url "$LCM_URL" --trajectory "$out/soak.tum" --stats-json "$out/vislamd.json" \
+    2>"$out/vislamd.log" &
   daemon=$!
   printf 'loop\tlog\trss_kb\treplay_exit\tjson\n' >"$out/loops.tsv"
   for ((loop = 1; loop <= loops; loop++)); do
@@ -585,14 +587,14 @@ section_daemon() {
     IFS='|' read -r name log extra <<<"$r"
     file=${name// /_}
     note "replaying $name at 1x into vislamd ($(wc -c <"$log") bytes)"
-    rm -f "$d/$file.replay.json" "$d/$file.vislamd.log"
+    rm -f "$d/$file.replay.json" "$d/$file.vislamd.log" "$d/$file.vislamd.json"
     echo "# $name" >>"$SEC_CMDS"
     # shellcheck disable=SC2086 # $extra holds separate vislamd options
     if ! VL_BENCH_CMDS="$SEC_CMDS" unshare --net bash "$SELF" --daemon-inner "$BIN" "$log" "$d/$file" "$alloc" 1 $extra \
       >"$d/$file.inner.log" 2>&1; then
       warn "daemon run on $name failed: $(tail -n 1 "$d/$file.inner.log") (see $d/$file.*.log)"
     fi
-    printf '%s\t%s\t%s\n' "$name" "$d/$file.vislamd.log" "$d/$file.replay.json" >>"$rows"
+    printf '%s\t%s\t%s\n' "$name" "$d/$file.vislamd.json" "$d/$file.replay.json" >>"$rows"
   done
   say "LCM $LCM_URL on the loopback of a private network namespace; vislamd at"
   say "normal priority with its default options (mlockall), or (rows 'rt') with --rt-priority 80 --cpu 1;"
@@ -628,7 +630,7 @@ section_soak() {
   say "over LCM on a private loopback: 0022, 0027, 0034, then again, $loops times. Each new log is a new"
   say "timeline for the daemon (its time jumps back or days ahead), which the time policy handles."
   say ""
-  table soak "$d/loops.tsv" "$d/vislamd.log"
+  table soak "$d/loops.tsv" "$d/vislamd.json"
   end_section
 }
 

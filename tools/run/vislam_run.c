@@ -23,6 +23,7 @@
 #include "vl_map_file.h"
 #include "vl_msg.h"
 #include "vl_session.h"
+#include "vl_stats_json.h"
 #include "vl_trajectory_file.h"
 
 #define EXIT_USAGE 2
@@ -315,22 +316,6 @@ static int write_ply(const char *path, const map_t *m)
     return 0;
 }
 
-static void json_string(FILE *f, const char *s)
-{
-    fputc('"', f);
-    for (; *s != '\0'; ++s) {
-        unsigned char c = (unsigned char)*s;
-        if (c == '"' || c == '\\') {
-            fprintf(f, "\\%c", c);
-        } else if (c < 0x20) {
-            fprintf(f, "\\u%04x", c);
-        } else {
-            fputc(c, f);
-        }
-    }
-    fputc('"', f);
-}
-
 typedef vl_counter_entry_t named_count_t;
 
 /* The core counters in declaration order. */
@@ -361,40 +346,6 @@ static size_t run_counter_list(const vl_session_t *ss, const vl_log_reader_stats
     return n + 1;
 }
 
-static void json_counts(FILE *f, const char *indent, const named_count_t *c, size_t n)
-{
-    for (size_t i = 0; i < n; ++i) {
-        fprintf(f, "%s\"%s\": %llu%s\n", indent, c[i].name, (unsigned long long)c[i].value, i + 1 < n ? "," : "");
-    }
-}
-
-/* Statuses a core call returned, keyed by vl_status_str. */
-static void json_status(FILE *f, const char *name, const vl_session_t *ss, int update, int last)
-{
-    fprintf(f, "    \"%s\": {", name);
-    int first = 1;
-    for (int s = (int)VL_STATUS_MIN; s <= (int)VL_STATUS_MAX; ++s) {
-        const uint64_t v = vl_session_status_count(ss, update, (vl_status_t)s);
-        if (v != 0) {
-            fprintf(f, "%s", first ? "" : ", ");
-            json_string(f, vl_status_str((vl_status_t)s));
-            fprintf(f, ": %llu", (unsigned long long)v);
-            first = 0;
-        }
-    }
-    fprintf(f, "}%s\n", last ? "" : ",");
-}
-
-static void json_timing(FILE *f, const char *name, const vl_latency_t *t, int last)
-{
-    fprintf(f,
-            "    \"%s\": {\"count\": %llu, \"median_us\": %lld, \"p99_us\": %lld, \"p999_us\": %lld, "
-            "\"max_us\": %lld}%s\n",
-            name, (unsigned long long)vl_latency_count(t), (long long)vl_latency_percentile(t, 50.0),
-            (long long)vl_latency_percentile(t, 99.0), (long long)vl_latency_percentile(t, 99.9),
-            (long long)vl_latency_max(t), last ? "" : ",");
-}
-
 static int write_stats_json(const char *path, const options_t *o, const vl_session_t *ss,
                             const vl_log_reader_stats_t *rs, int truncated, const sinks_t *k,
                             const vl_latency_t *t_update, const vl_latency_t *t_propagate)
@@ -407,24 +358,22 @@ static int write_stats_json(const char *path, const options_t *o, const vl_sessi
     }
     named_count_t list[64];
     fprintf(f, "{\n  \"log\": ");
-    json_string(f, o->log_path);
+    vl_json_string(f, o->log_path);
     fprintf(f, ",\n  \"mode\": \"%s\",\n  \"max_landmarks\": %u,\n", vl_mode_name(cfg->mode),
             (unsigned)cfg->max_landmarks);
     fprintf(f, "  \"calibration_source\": \"%s\",\n", vl_session_calibration_source(ss));
     fprintf(f, "  \"landmarks_mapped\": %zu,\n", k->map.count);
     fprintf(f, "  \"health\": %d,\n", (int)vl_session_health(ss));
     fprintf(f, "  \"run\": {\n");
-    json_counts(f, "    ", list, run_counter_list(ss, rs, truncated, k->trajectory_lines, list));
+    vl_json_counts(f, "    ", list, run_counter_list(ss, rs, truncated, k->trajectory_lines, list));
     fprintf(f, "  },\n  \"core_counters\": {\n");
-    json_counts(f, "    ", list, core_counter_list(vl_session_core_counters(ss), list));
-    fprintf(f, "  },\n  \"core_status\": {\n");
-    json_status(f, "vl_propagate", ss, 0, 0);
-    json_status(f, "vl_update", ss, 1, 1);
-    fprintf(f, "  }");
+    vl_json_counts(f, "    ", list, core_counter_list(vl_session_core_counters(ss), list));
+    fprintf(f, "  },\n");
+    vl_json_core_status(f, "  ", ss);
     if (o->timing) {
         fprintf(f, ",\n  \"timing\": {\n");
-        json_timing(f, "vl_update", t_update, 0);
-        json_timing(f, "vl_propagate", t_propagate, 1);
+        vl_json_latency(f, "    ", "vl_update", t_update, 0);
+        vl_json_latency(f, "    ", "vl_propagate", t_propagate, 1);
         fprintf(f, "  }");
     }
     fprintf(f, "\n}\n");

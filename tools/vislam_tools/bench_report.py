@@ -11,10 +11,10 @@ the others.
   window ROWS     max_landmarks, ate.json (0027), stats.json (0027), stats.json (0034)
   timing ROWS     label, stats.json (vislam-run --timing --stats-json)
   callgrind DIR   per-call costs from the dumps of callgrind --dump-after=vl_update
-  daemon ROWS     label, vislamd stderr, vislam-replay --summary-json
+  daemon ROWS     label, vislamd --stats-json, vislam-replay --summary-json
   latency ROWS    label, vislam-latency --json
-  soak LOOPS LOG  bench.sh's loops.tsv (loop, log, daemon RSS in KiB, replay exit, summary json) and
-                  the daemon's stderr
+  soak LOOPS STATS bench.sh's loops.tsv (loop, log, daemon RSS in KiB, replay exit, summary json) and
+                  the daemon's --stats-json
   conditions ROWS drive, velocities, K, truth, conditions summary.json, ate.json (dead reckoning),
                   ate.json (default); --json OUT (cell -> numbers), --png OUT (figure)
 """
@@ -274,25 +274,22 @@ def cmd_callgrind(args):
     return 0
 
 
-_LAT_RE = r"{}\s*:\s*n (\d+)\s+p50 (\d+)\s+p90 (\d+)\s+p99 (\d+)\s+p99\.9 (\d+)\s+max (\d+)\s+mean ([\d.]+) us"
-
-
 def _daemon_summary(path):
-    try:
-        with open(path) as f:
-            text = f.read()
-    except OSError:
-        return {}
+    """vislamd's --stats-json (PATH), with the LD_PRELOAD allocation counter's report beside it."""
+    stats = load_json(path) or {}
     d = {}
-    for key, label in (("all", "all steps"), ("propagation", "propagation"), ("update", "update")):
-        m = re.search(_LAT_RE.format(re.escape(label)), text)
-        if m:
-            d[key] = dict(zip(("n", "p50", "p90", "p99", "p999", "max", "mean"),
-                              [int(x) for x in m.groups()[:6]] + [float(m.group(7))]))
-    m = re.search(r"budget (\d+) us[^:]*: (\d+) overrun\(s\) in (\d+) steps", text)
-    if m:
-        d["budget_us"], d["overruns"], d["steps"] = (int(x) for x in m.groups())
-    # The LD_PRELOAD counter's own report beside the daemon's log (VL_ALLOC_REPORT, "key value" lines).
+    for key, lat in stats.get("step_latency", {}).items():
+        d[key] = {"n": lat.get("count"), "p50": lat.get("median_us"), "p90": lat.get("p90_us"),
+                  "p99": lat.get("p99_us"), "p999": lat.get("p999_us"), "max": lat.get("max_us"),
+                  "mean": lat.get("mean_us")}
+    for key in ("budget_us", "overruns", "steps"):
+        if key in stats:
+            d[key] = stats[key]
+    core = stats.get("core_counters", {})
+    for key in ("timeline_changes", "divergence_resets"):
+        if key in core:
+            d[key] = core[key]
+    # The LD_PRELOAD counter's own report beside the daemon's (VL_ALLOC_REPORT, "key value" lines).
     alloc = {}
     try:
         with open(os.path.splitext(path)[0] + ".alloc") as f:
@@ -302,9 +299,6 @@ def _daemon_summary(path):
     if alloc.get("alloc.armed", "").strip() == "1":
         d["alloc_process"] = int(alloc["alloc.process_after_arm"])
         d["alloc_main"] = int(alloc["alloc.armed_thread_after_arm"])
-    m = re.search(r"timeline changes (\d+), divergence resets (\d+)", text)
-    if m:
-        d["timeline_changes"], d["divergence_resets"] = int(m.group(1)), int(m.group(2))
     return d
 
 
@@ -370,7 +364,7 @@ def cmd_soak(args):
                      f"{fmt(r.get('frames_expected'))}", " / ".join(fmt(lat.get(k)) for k in ("p99", "max")),
                      rss_kb, rc])
     print(_table(header, rows))
-    d = _daemon_summary(args.log)
+    d = _daemon_summary(args.stats)
     print()
     print(f"Sensor time {sensor_s:.0f} s ({sensor_s / 3600:.2f} h) in {len(loops)} replays; frames answered "
           f"{returned} of {expected} ({expected - returned} without a pose, at the timeline switches); "
@@ -458,7 +452,7 @@ def main(argv=None):
     p.add_argument("--png")
     p = sub.add_parser("soak")
     p.add_argument("loops")
-    p.add_argument("log")
+    p.add_argument("stats")
     p = sub.add_parser("callgrind")
     p.add_argument("dir")
     p.add_argument("--json")

@@ -55,6 +55,7 @@
 #include "vl_rt.h"
 #include "vl_session.h"
 #include "vl_signal.h"
+#include "vl_stats_json.h"
 #include "vl_trajectory_file.h"
 #include "vl_warm.h"
 
@@ -100,6 +101,7 @@ typedef struct {
     const char *lcm_url;
     const char *trajectory_path;
     const char *step_samples_path;
+    const char *stats_json_path;
     const char *prefix;
     const char *channel[CH_COUNT];
     long budget_us;          /* 0: automatic */
@@ -209,6 +211,7 @@ typedef struct {
     uint64_t step_samples_dropped;
     FILE *step_samples_file;
     char *step_samples_buf;
+    FILE *stats_file; /* --stats-json: opened at start-up, written at exit */
 
     /* systemd: readiness, watchdog, status line (all no-ops when not run as a Type=notify service) */
     vl_notify_t notify;
@@ -247,6 +250,8 @@ static void usage(FILE *f)
             "                          started, pose published, previous input's handler called, and its\n"
             "                          publishing (ns); kept in memory for the first %d frames\n"
             "                          (vislam-latency's LCM overhead and its stages)\n"
+            "  --stats-json FILE       at exit, the summary as JSON: steps, budget and overruns, step\n"
+            "                          latency percentiles, the daemon's, session's and core's counters\n"
             "  --budget-us N           per-step time budget in us (default: the sensor period, the median\n"
             "                          of the last %d IMU intervals; %d us until known)\n"
             "  --rt-priority N         SCHED_FIFO priority 1..99 (a refusal is a warning)\n"
@@ -315,7 +320,7 @@ static int takes_value(const char *a)
 {
     static const char *const names[] = {"--config",         "--lcm-url",         "--trajectory",  "--step-samples",
                                         "--channel-prefix", "--budget-us",       "--rt-priority", "--cpu",
-                                        "--busy-poll-us",   "--cpu-dma-latency", "--warm-us"};
+                                        "--busy-poll-us",   "--cpu-dma-latency", "--warm-us",     "--stats-json"};
     for (size_t i = 0; i < sizeof(names) / sizeof(names[0]); ++i) {
         if (strcmp(a, names[i]) == 0) {
             return 1;
@@ -392,6 +397,8 @@ static int parse_args(int argc, char **argv, options_t *o)
             o->trajectory_path = v;
         } else if (strcmp(a, "--step-samples") == 0) {
             o->step_samples_path = v;
+        } else if (strcmp(a, "--stats-json") == 0) {
+            o->stats_json_path = v;
         } else if (strcmp(a, "--channel-prefix") == 0) {
             o->prefix = v;
         } else if (strcmp(a, "--budget-us") == 0) {
@@ -1122,6 +1129,74 @@ static int write_step_samples(daemon_t *d)
     return 0;
 }
 
+/* --stats-json at start-up: the file opened (an unwritable path fails now, not at exit) with a
+   static stdio buffer, so that the write at exit does not allocate. */
+static int open_stats(daemon_t *d)
+{
+    static char buf[16384];
+    d->stats_file = fopen(d->opt.stats_json_path, "w");
+    if (d->stats_file == NULL || setvbuf(d->stats_file, buf, _IOFBF, sizeof(buf)) != 0) {
+        fprintf(stderr, "vislamd: cannot write %s: %s\n", d->opt.stats_json_path, strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+/* At exit: what print_summary says, as JSON for programs (tools/bench.sh); 0, or -1 on a write error. */
+static int write_stats(daemon_t *d)
+{
+    FILE *f = d->stats_file;
+    const vl_session_t *ss = &d->session;
+    const int sig = vl_signal_last();
+    fprintf(f, "{\n  \"program\": \"vislamd\",\n  \"stopped_by\": \"%s\",\n  \"calibration_source\": ",
+            sig == SIGINT ? "SIGINT" : (sig == SIGTERM ? "SIGTERM" : "error"));
+    vl_json_string(f, vl_session_calibration_source(ss));
+    fprintf(f,
+            ",\n  \"health\": %d,\n  \"steps\": %" PRIu64 ",\n  \"budget_us\": %" PRId64
+            ",\n  \"budget_source\": \"%s\",\n  \"overruns\": %" PRIu64 ",\n",
+            (int)vl_session_health(ss), d->n.steps, d->budget_us,
+            d->opt.budget_us > 0 ? "--budget-us" : "sensor_period", d->n.overruns);
+    fprintf(f, "  \"step_latency\": {\n");
+    vl_json_latency(f, "    ", "all", &d->lat_all, 0);
+    vl_json_latency(f, "    ", "propagation", &d->lat_step[STEP_PROPAGATE], 0);
+    vl_json_latency(f, "    ", "update", &d->lat_step[STEP_UPDATE], 1);
+    const vl_counter_entry_t out[] = {
+        {"bot_poses_out", d->n.bot_poses_out, "bot_core.pose_t messages published"},
+        {"status_out", d->n.status_out, "VISLAM_STATUS messages published"},
+        {"publish_errors", d->n.publish_errors, "lcm_publish calls that failed"},
+        {"landmarks_out", d->n.landmarks_out, "landmarks published on the map channel"},
+        {"landmark_batches_out", d->n.landmark_batches_out, "map messages published"},
+        {"imu_poses_superseded", d->n.imu_poses_superseded,
+         "IMU poses not sent: a frame's pose of the same or a later time followed"},
+        {"imu_poses_sent_late", d->n.imu_poses_sent_late,
+         "IMU poses held for a frame whose pose did not follow in time, sent late"},
+        {"trajectory_lines", d->have_trajectory ? vl_trajectory_lines(&d->trajectory) : 0, "TUM lines written"},
+        {"trajectory_errors", d->n.trajectory_errors, "TUM lines that failed to write"},
+        {"lcm_rx_messages", d->rx.messages, "messages the direct receiver handed to a handler"},
+        {"lcm_rx_other_channels", d->rx.other, "well-formed messages on channels vislamd does not read"},
+        {"lcm_rx_fragments_dropped", d->rx.fragments, "datagrams of fragmented (large) messages, dropped"},
+        {"lcm_rx_malformed", d->rx.malformed, "datagrams that were not LCM messages"},
+    };
+    fprintf(f, "  },\n  \"daemon\": {\n");
+    vl_json_counts(f, "    ", out, sizeof(out) / sizeof(out[0]));
+    vl_counter_entry_t session[VL_SESSION_NUM_COUNTERS], core[VL_NUM_COUNTERS];
+    fprintf(f, "  },\n  \"session\": {\n");
+    vl_json_counts(f, "    ", session, vl_session_counter_list(ss, session));
+    fprintf(f, "  },\n  \"core_counters\": {\n");
+    vl_json_counts(f, "    ", core, vl_counters_list(vl_session_core_counters(ss), core));
+    fprintf(f, "  },\n");
+    vl_json_core_status(f, "  ", ss);
+    fprintf(f, "\n}\n");
+    const int bad = ferror(f);
+    const int closed = fclose(f);
+    d->stats_file = NULL;
+    if (closed != 0 || bad) {
+        fprintf(stderr, "vislamd: error: write error on %s\n", d->opt.stats_json_path);
+        return -1;
+    }
+    return 0;
+}
+
 static void print_summary(const daemon_t *d)
 {
     const vl_session_t *ss = &d->session;
@@ -1281,6 +1356,9 @@ int main(int argc, char **argv)
     if (d->opt.step_samples_path != NULL && open_step_samples(d) != 0) {
         return EXIT_RUNTIME;
     }
+    if (d->opt.stats_json_path != NULL && open_stats(d) != 0) {
+        return EXIT_RUNTIME;
+    }
     if (warm_up(d) != 0) {
         return EXIT_RUNTIME;
     }
@@ -1394,6 +1472,9 @@ int main(int argc, char **argv)
         print_summary(d);
     }
     if (d->step_samples_file != NULL && write_step_samples(d) != 0) {
+        exit_code = EXIT_RUNTIME;
+    }
+    if (d->stats_file != NULL && write_stats(d) != 0) {
         exit_code = EXIT_RUNTIME;
     }
     if (d->have_trajectory && vl_trajectory_close(&d->trajectory) != 0) {
