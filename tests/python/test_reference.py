@@ -194,12 +194,14 @@ def test_reference_agrees_when_the_pixel_estimate_drops(build_dir, tmp_path, mon
 def test_reference_agrees_without_outlier_rejection(build_dir, tmp_path):
     """gate_chi2 = 0 (no outlier test at all) with the noise adapted: every row is used and read by the
     adaptation. Without rejection the sample's outliers leave worse-conditioned updates, so the two
-    agree to 6e-8 m here (2e-8 m with the noise fixed), not 1e-9; the adaptation matters (metres)."""
+    agree to 6e-8 m on an AVX2 host and 1.1e-7 m on an AVX-512 one (the vector instructions round
+    differently; 2e-8 m with the noise fixed), not 1e-9: 1e-6 m is asserted, five orders under what
+    leaving the adaptation out of the reference costs (over 0.1 m)."""
     ini = tmp_path / "plain.ini"
     ini.write_text("[outliers]\ngate_chi2 = 0\n")
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "50")
     assert fig["agreement"]["frames_compared"] == 50
-    assert fig["agreement"]["position_max_m"] < 1e-7
+    assert fig["agreement"]["position_max_m"] < 1e-6
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "50", "--set", "adaptive_noise=false")
     assert fig["agreement"]["position_max_m"] > 0.1
 
