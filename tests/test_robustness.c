@@ -10,6 +10,7 @@
 #include "unity.h"
 #include "vl_test_util.h"
 #include "vislam/vislam.h"
+#include "vl_estimator_internal.h"
 #include "vl_stereo.h"
 
 static vl_estimator_t est;
@@ -550,6 +551,9 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
     test_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 3);
+    /* Offsets as a drive would have learned them (the sensor's, which outlast a divergence). */
+    est.offset_linear[1] = -0.07;
+    est.offset_angular[2] = 0.005;
     /* Away from the start: 2 m/s forward for three steps, IMU only. */
     for (int k = 3; k < 6; ++k) {
         const vl_imu_sample_t s = imu_at(T0 + k * STEP, 2.0);
@@ -559,6 +563,11 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
     get_pose(&est, &before);
     TEST_ASSERT_TRUE(before.position[0] > 0.5);
     TEST_ASSERT_TRUE(vl_window_size(&est) > 0);
+    static double core_before[VL_CORE_DIM * VL_CORE_DIM];
+    for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
+        memcpy(&core_before[VL_CORE_DIM * j], &est.P[(size_t)j * VL_STATE_DIM_MAX], VL_CORE_DIM * sizeof(double));
+    }
+    TEST_ASSERT_TRUE(core_before[VL_CORE_DIM * 6 + 0] != 0.0); /* the pose and the offsets are correlated */
     /* A negative variance: the next input's check finds it. */
     est.P[(size_t)4 * VL_STATE_DIM_MAX + 4] = -1e-3;
     const vl_imu_sample_t s = imu_at(T0 + 6 * STEP, 2.0);
@@ -572,6 +581,16 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
     TEST_ASSERT_TRUE(after.covariance[0] > 0.0);
     TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
     TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->divergence_resets);
+    /* So are the offsets, with the core block of P (pose, offsets and their correlation); the
+     * adapted noise starts again from the configured values. */
+    TEST_ASSERT_EQUAL_MEMORY(before.linear_offset, after.linear_offset, sizeof(before.linear_offset));
+    TEST_ASSERT_EQUAL_MEMORY(before.angular_offset, after.angular_offset, sizeof(before.angular_offset));
+    TEST_ASSERT_EQUAL_DOUBLE(-0.07, after.linear_offset[1]);
+    for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
+        TEST_ASSERT_EQUAL_MEMORY(&core_before[VL_CORE_DIM * j], &est.P[(size_t)j * VL_STATE_DIM_MAX],
+                                 VL_CORE_DIM * sizeof(double));
+    }
+    TEST_ASSERT_EQUAL_DOUBLE(cfg.linear_velocity_noise, after.linear_velocity_noise);
     /* The motion goes on from there with the next sample. */
     const vl_imu_sample_t next = imu_at(T0 + 7 * STEP, 2.0), later = imu_at(T0 + 8 * STEP, 2.0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &next));
@@ -590,6 +609,10 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
     for (int i = 0; i < 36; ++i) {
         TEST_ASSERT_EQUAL_DOUBLE(0.0, after.covariance[i]);
     }
+    /* ... and the offsets at their prior, as at vl_init. */
+    TEST_ASSERT_EQUAL_DOUBLE(0.0, after.linear_offset[1]);
+    TEST_ASSERT_EQUAL_DOUBLE(cfg.linear_offset_prior * cfg.linear_offset_prior,
+                             est.P[(size_t)(VL_IDX_OFFSET_LIN + 1) * VL_STATE_DIM_MAX + VL_IDX_OFFSET_LIN + 1]);
     TEST_ASSERT_EQUAL_UINT64(2, vl_get_counters(&est)->divergence_resets);
     /* A new timeline still starts a new world at the identity (vl_reset likewise). */
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_reset(&est));
@@ -672,6 +695,49 @@ void test_frames_contradicting_the_state_frame_after_frame_reset_the_filter(void
         }
         cfg.divergence_frames = 0;
     }
+}
+
+/* With the noise adapted, frames that keep contradicting the state widen the noise, but only to
+ * 20x the configured std: a burst of tracks jumping back and forth is then still distrusted
+ * frame after frame, and the divergence rule restarts the filter instead of the pose following
+ * the jumps (unbounded, the widening let them through after five frames; README, Robustness). */
+void test_contradicting_frames_widen_the_noise_only_so_far(void)
+{
+    vl_config_t cfg;
+    test_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    clean_steps(&est, &cfg, T0, 3);
+    int resets_at = -1;
+    double widest[3] = {0.0, 0.0, 0.0};
+    for (int k = 3; k < 40 && resets_at < 0; ++k) {
+        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        static vl_stereo_frame_t f;
+        make_frame(&cfg, &f, T0 + k * STEP);
+        const double shift = (k % 2) ? 150.0 : -150.0;
+        for (uint32_t i = 0; i < f.count; ++i) {
+            f.obs[i].u_left += shift;
+            f.obs[i].u_right += shift;
+        }
+        const vl_status_t st = vl_update(&est, &f);
+        if (st == VL_RESET) {
+            resets_at = k;
+            break;
+        }
+        TEST_ASSERT_EQUAL_INT(VL_OK, st);
+        vl_pose_t p;
+        get_pose(&est, &p);
+        widest[0] = fmax(widest[0], p.linear_velocity_noise / cfg.linear_velocity_noise);
+        widest[1] = fmax(widest[1], p.angular_velocity_noise / cfg.angular_velocity_noise);
+        widest[2] = fmax(widest[2], p.pixel_noise / cfg.pixel_noise);
+    }
+    for (int i = 0; i < 3; ++i) {
+        TEST_ASSERT_TRUE(widest[i] > 4.0);          /* it did widen */
+        TEST_ASSERT_TRUE(widest[i] <= 20.0 + 1e-9); /* and stopped */
+    }
+    TEST_ASSERT_TRUE_MESSAGE(resets_at > 0, "the jumps were followed instead of distrusted");
+    TEST_ASSERT_EQUAL_INT(3 + (int)cfg.divergence_frames - 1, resets_at);
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->divergence_resets);
 }
 
 void test_vl_reset_keeps_configuration_and_counters(void)
@@ -786,6 +852,7 @@ int main(void)
     RUN_TEST(test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged);
     RUN_TEST(test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed_out);
     RUN_TEST(test_frames_contradicting_the_state_frame_after_frame_reset_the_filter);
+    RUN_TEST(test_contradicting_frames_widen_the_noise_only_so_far);
     RUN_TEST(test_vl_reset_keeps_configuration_and_counters);
     RUN_TEST(test_frames_without_imu_are_not_propagated_with_a_stale_velocity);
     RUN_TEST(test_imu_back_after_a_silence_without_frames_is_not_integrated);

@@ -45,6 +45,18 @@ typedef char vl_assert_pending_capacity[(VL_MAX_PENDING >= VL_MAX_FRAME_FEATURES
 
 /* ---------------------------------------------------------------- life cycle */
 
+/* The pose, the offsets and the core block of P now become what a divergence goes back to. */
+static void keep_sound(vl_estimator_t *e)
+{
+    memcpy(e->sound_R, e->R, sizeof(e->sound_R));
+    memcpy(e->sound_p, e->p, sizeof(e->sound_p));
+    memcpy(&e->sound_offset[0], e->offset_linear, 3 * sizeof(double));
+    memcpy(&e->sound_offset[3], e->offset_angular, 3 * sizeof(double));
+    for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
+        memcpy(&e->sound_P[VL_CORE_DIM * j], vl_P_at(e, 0, j), VL_CORE_DIM * sizeof(double));
+    }
+}
+
 /* The state vl_init gives: identity pose, empty window, configured noise; counters zero. */
 static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
 {
@@ -52,7 +64,6 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
     e->cfg = *cfg;
     static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(e->R, I3, sizeof(I3));
-    memcpy(e->sound_R, I3, sizeof(I3));
     /* Only the leading 12 x 12 block is live at start; the rest is written as landmarks arrive. */
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
         memset(&vl_P(e)[(size_t)j * VL_LD], 0, VL_CORE_DIM * sizeof(double));
@@ -68,6 +79,7 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
     e->linear_velocity_var = cfg->linear_velocity_noise * cfg->linear_velocity_noise;
     e->angular_velocity_var = cfg->angular_velocity_noise * cfg->angular_velocity_noise;
     e->pixel_var = cfg->pixel_noise * cfg->pixel_noise;
+    keep_sound(e); /* a divergence before any input passed goes back here */
     e->initialized = 1;
 }
 
@@ -79,10 +91,13 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
  * After a divergence (keep_world) the inputs that follow continue
  * as before: the time bookkeeping and the held IMU sample are kept, and so is
  * the world frame, the estimator starting at the last sound pose (before the
- * input that diverged; that input's motion is lost) with that pose's
- * covariance when the saved copy still passes the check (else none, as at
- * vl_init). A new timeline (and vl_reset) starts a new world at the identity
- * and the clock afresh.
+ * input that diverged; that input's motion is lost) with the input offsets
+ * then, and the core block of P then when the saved copy still passes the
+ * check (else the pose certain and the offsets at their prior, as at vl_init).
+ * The offsets are the sensor's and outlast the divergence; the adapted noise
+ * restarts from the configured values, since it may be what let the estimate
+ * go. A new timeline (and vl_reset) starts a new world at the identity and the
+ * clock afresh.
  */
 static void reset_state(vl_estimator_t *e, int keep_world)
 {
@@ -102,9 +117,10 @@ static void reset_state(vl_estimator_t *e, int keep_world)
     memcpy(held_linear, old->held_linear, sizeof(held_linear));
     memcpy(held_angular, old->held_angular, sizeof(held_angular));
     const int held_trusted = old->held_trusted;
-    double sound_R[9], sound_p[3], sound_P[36];
+    double sound_R[9], sound_p[3], sound_offset[6], sound_P[VL_CORE_DIM * VL_CORE_DIM];
     memcpy(sound_R, old->sound_R, sizeof(sound_R));
     memcpy(sound_p, old->sound_p, sizeof(sound_p));
+    memcpy(sound_offset, old->sound_offset, sizeof(sound_offset));
     memcpy(sound_P, old->sound_P, sizeof(sound_P));
     init_state(e, &cfg);
     e->counters = counters;
@@ -122,14 +138,14 @@ static void reset_state(vl_estimator_t *e, int keep_world)
         e->held_trusted = held_trusted;
         memcpy(e->R, sound_R, sizeof(sound_R));
         memcpy(e->p, sound_p, sizeof(sound_p));
-        memcpy(e->sound_R, sound_R, sizeof(sound_R));
-        memcpy(e->sound_p, sound_p, sizeof(sound_p));
-        if (vl_guard_block_sound(sound_P, 6, 6)) {
-            for (uint32_t j = 0; j < 6; ++j) {
-                memcpy(vl_P_at(e, 0, j), &sound_P[6 * j], 6 * sizeof(double));
+        if (vl_guard_block_sound(sound_P, VL_CORE_DIM, VL_CORE_DIM) && vl_all_finite(sound_offset, 6)) {
+            memcpy(e->offset_linear, &sound_offset[0], 3 * sizeof(double));
+            memcpy(e->offset_angular, &sound_offset[3], 3 * sizeof(double));
+            for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
+                memcpy(vl_P_at(e, 0, j), &sound_P[VL_CORE_DIM * j], VL_CORE_DIM * sizeof(double));
             }
-            memcpy(e->sound_P, sound_P, sizeof(sound_P));
         }
+        keep_sound(e);
     }
 }
 
@@ -177,11 +193,7 @@ vl_status_t vl_reset(vl_estimator_t *e)
 static vl_status_t guard_divergence(vl_estimator_t *e, vl_input_kind_t kind, int64_t utime, vl_status_t result)
 {
     if (!vl_guard_diverged(e)) {
-        memcpy(e->sound_R, e->R, sizeof(e->sound_R));
-        memcpy(e->sound_p, e->p, sizeof(e->sound_p));
-        for (uint32_t j = 0; j < 6; ++j) {
-            memcpy(&e->sound_P[6 * j], vl_P_at(e, 0, j), 6 * sizeof(double));
-        }
+        keep_sound(e);
         return result;
     }
     reset_state(e, 1);

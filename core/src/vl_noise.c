@@ -38,6 +38,12 @@
 #define VL_VELOCITY_MIN_INFORMATION 1e-12
 /* Variance factor applied when frame after frame contradicts the prior. */
 #define VL_NOISE_WIDEN_ON_CONTRADICTION 4.0
+/* The widening stops at this factor of the configured std: enough for a prior 10x too small
+ * (the sweep's worst), while frames that keep contradicting beyond it are distrusted until the
+ * divergence rule restarts the filter. Unbounded, a burst of frames whose tracks all jump by a
+ * few degrees' worth of pixels widened the noise 30x until the pose followed them (README,
+ * Robustness). The matching adaptation itself stays bounded by VL_NOISE_ADAPT_RANGE. */
+#define VL_NOISE_WIDEN_RANGE 20.0
 
 double vl_noise_clamp_var(double var, double configured_std)
 {
@@ -278,10 +284,17 @@ void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uin
 
 /* A tracker re-associates on single frames; frame after frame contradicting the
  * prior means the prior is overconfident. */
+/* One variance widened, up to VL_NOISE_WIDEN_RANGE of the configured std (never lowered by it). */
+static double widen(double var, double configured_std)
+{
+    const double top = VL_NOISE_WIDEN_RANGE * VL_NOISE_WIDEN_RANGE * configured_std * configured_std;
+    const double wide = var * VL_NOISE_WIDEN_ON_CONTRADICTION;
+    return vl_noise_clamp_var(wide < top ? wide : (var > top ? var : top), configured_std);
+}
+
 void vl_noise_widen(vl_estimator_t *e)
 {
-    const double f = VL_NOISE_WIDEN_ON_CONTRADICTION;
-    e->linear_velocity_var = vl_noise_clamp_var(e->linear_velocity_var * f, e->cfg.linear_velocity_noise);
-    e->angular_velocity_var = vl_noise_clamp_var(e->angular_velocity_var * f, e->cfg.angular_velocity_noise);
-    e->pixel_var = vl_noise_clamp_var(e->pixel_var * f, e->cfg.pixel_noise);
+    e->linear_velocity_var = widen(e->linear_velocity_var, e->cfg.linear_velocity_noise);
+    e->angular_velocity_var = widen(e->angular_velocity_var, e->cfg.angular_velocity_noise);
+    e->pixel_var = widen(e->pixel_var, e->cfg.pixel_noise);
 }

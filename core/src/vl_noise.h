@@ -43,7 +43,8 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
  */
 void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uint32_t used);
 
-/** A frame that contradicts the prior after others did: widens all three noise levels. */
+/** A frame that contradicts the prior after others did: widens all three noise levels (x4 in
+ * variance, up to 20x the configured std; a level already above that stays). */
 void vl_noise_widen(vl_estimator_t *e);
 
 /**

@@ -56,6 +56,7 @@ VELOCITY_RATIO_MIN, VELOCITY_RATIO_MAX = 0.1, 10.0
 LOG_RATIO_BIAS = (0.768765, 0.593114, 0.479665, 0.400083, 0.341355)
 VELOCITY_MIN_INFORMATION = 1e-12
 WIDEN_ON_CONTRADICTION = 4.0
+WIDEN_RANGE = 20.0          # the widening stops at this factor of the configured std
 SERIES_ANGLE = 1.0           # below this angle (rad) the Lie-group coefficients come from series
 SERIES_TERMS = 14
 STEREO_SHARE = np.array([1.0, 0.5, 1.0])  # noise of [u_left, (v_left + v_right) / 2, u_right] / s^2
@@ -1080,10 +1081,15 @@ class Filter:
             setattr(self, name, _clamp_var(getattr(self, name) * math.exp(step), self.cfg[key]))
 
     def widen_noise(self):
-        """Frame after frame contradicting the prior: every noise x4 (within the bounds)."""
-        self.var_v = _clamp_var(self.var_v * WIDEN_ON_CONTRADICTION, self.cfg["linear_velocity"])
-        self.var_w = _clamp_var(self.var_w * WIDEN_ON_CONTRADICTION, self.cfg["angular_velocity"])
-        self.var_px = _clamp_var(self.var_px * WIDEN_ON_CONTRADICTION, self.cfg["pixel"])
+        """Frame after frame contradicting the prior: every noise x4, up to WIDEN_RANGE times the
+        configured std (a level already above it stays), within the bounds."""
+        def widen(var, std):
+            top = (WIDEN_RANGE * std) ** 2
+            wide = var * WIDEN_ON_CONTRADICTION
+            return _clamp_var(wide if wide < top else max(var, top), std)
+        self.var_v = widen(self.var_v, self.cfg["linear_velocity"])
+        self.var_w = widen(self.var_w, self.cfg["angular_velocity"])
+        self.var_px = widen(self.var_px, self.cfg["pixel"])
 
     # ---- the window (core/src/vl_window.c)
 

@@ -423,10 +423,11 @@ typedef struct {
     double frame_velocity[6]; /**< linear m/s, angular rad/s */
     int have_frame_velocity;  /**< frame_velocity holds: two frames in a row, in slam mode */
 
-    /** The pose after the last input that passed the divergence check: where a divergence re-initializes. */
-    double sound_R[9];  /**< world-from-IMU rotation, row-major */
-    double sound_p[3];  /**< m */
-    double sound_P[36]; /**< its 6x6 block of P, column-major (the internal perturbation; m^2, rad^2) */
+    /** The state after the last input that passed the divergence check: where a divergence re-initializes. */
+    double sound_R[9];                         /**< world-from-IMU rotation, row-major */
+    double sound_p[3];                         /**< m */
+    double sound_offset[6];                    /**< the input offsets: linear m/s, angular rad/s */
+    double sound_P[VL_CORE_DIM * VL_CORE_DIM]; /**< the core block of P (pose and offsets), column-major */
 
     /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
     uint32_t num_prev_obs;
