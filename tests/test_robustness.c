@@ -657,6 +657,22 @@ void test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed
     TEST_ASSERT_EQUAL_INT(VL_ERR_NON_FINITE, vl_get_pose(&est, &p));
 }
 
+/* Step k of a standing vehicle (the IMU sample, then the frame) whose every track jumps 150 px,
+ * back and forth from one frame to the next; the frame's status. */
+static vl_status_t jumped_step(const vl_config_t *cfg, int k)
+{
+    const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    static vl_stereo_frame_t f;
+    make_frame(cfg, &f, T0 + k * STEP);
+    const double shift = (k % 2) ? 150.0 : -150.0;
+    for (uint32_t i = 0; i < f.count; ++i) {
+        f.obs[i].u_left += shift;
+        f.obs[i].u_right += shift;
+    }
+    return vl_update(&est, &f);
+}
+
 void test_frames_contradicting_the_state_frame_after_frame_reset_the_filter(void)
 {
     vl_config_t cfg;
@@ -669,16 +685,7 @@ void test_frames_contradicting_the_state_frame_after_frame_reset_the_filter(void
         TEST_ASSERT_TRUE(vl_window_size(&est) >= 8);
         int resets_at = -1;
         for (int k = 3; k < 30 && resets_at < 0; ++k) {
-            const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
-            TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
-            static vl_stereo_frame_t f;
-            make_frame(&cfg, &f, T0 + k * STEP);
-            const double shift = (k % 2) ? 150.0 : -150.0; /* every track jumps 150 px, back and forth */
-            for (uint32_t i = 0; i < f.count; ++i) {
-                f.obs[i].u_left += shift;
-                f.obs[i].u_right += shift;
-            }
-            const vl_status_t st = vl_update(&est, &f);
+            const vl_status_t st = jumped_step(&cfg, k);
             if (st == VL_RESET) {
                 resets_at = k;
             } else {
@@ -710,16 +717,7 @@ void test_contradicting_frames_widen_the_noise_only_so_far(void)
     int resets_at = -1;
     double widest[3] = {0.0, 0.0, 0.0};
     for (int k = 3; k < 40 && resets_at < 0; ++k) {
-        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
-        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
-        static vl_stereo_frame_t f;
-        make_frame(&cfg, &f, T0 + k * STEP);
-        const double shift = (k % 2) ? 150.0 : -150.0;
-        for (uint32_t i = 0; i < f.count; ++i) {
-            f.obs[i].u_left += shift;
-            f.obs[i].u_right += shift;
-        }
-        const vl_status_t st = vl_update(&est, &f);
+        const vl_status_t st = jumped_step(&cfg, k);
         if (st == VL_RESET) {
             resets_at = k;
             break;
