@@ -282,8 +282,6 @@ void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uin
     }
 }
 
-/* A tracker re-associates on single frames; frame after frame contradicting the
- * prior means the prior is overconfident. */
 /* One variance widened, up to VL_NOISE_WIDEN_RANGE of the configured std (never lowered by it). */
 static double widen(double var, double configured_std)
 {
@@ -292,6 +290,8 @@ static double widen(double var, double configured_std)
     return vl_noise_clamp_var(wide < top ? wide : (var > top ? var : top), configured_std);
 }
 
+/* A tracker re-associates on single frames; frame after frame contradicting the
+ * prior means the prior is overconfident. */
 void vl_noise_widen(vl_estimator_t *e)
 {
     e->linear_velocity_var = widen(e->linear_velocity_var, e->cfg.linear_velocity_noise);
