@@ -104,3 +104,20 @@ def test_corrupt_inserts_damaged_copies_before_the_originals(tmp_path, vislam_ty
 def test_step_out_of_range(tmp_path, clean):
     with pytest.raises(ToolError):
         inject(SAMPLE, tmp_path / "x.lcmlog", "velocity", step=200)
+
+
+def test_jump_moves_the_burst_frames_back_and_forth_and_nothing_else(tmp_path, vislam_types, clean):
+    info = inject(SAMPLE, tmp_path / "j.lcmlog", "jump", step=100, count=6, pixels=40.0)
+    assert info["frames_moved"] == 6
+    events = read_log(tmp_path / "j.lcmlog")
+    assert len(events) == len(clean)
+    before = [vislam_types.stereo_frame_t.decode(e.data) for e in clean if e.channel == "VISLAM_FEATURES"]
+    after = [vislam_types.stereo_frame_t.decode(e.data) for e in events if e.channel == "VISLAM_FEATURES"]
+    for k, (b, a) in enumerate(zip(before, after)):
+        du = {round(x - y, 9) for x, y in zip(a.u_left[:a.num_features], b.u_left[:b.num_features])}
+        dr = {round(x - y, 9) for x, y in zip(a.u_right[:a.num_features], b.u_right[:b.num_features])}
+        want = {(-40.0 if (k - 100) % 2 == 0 else 40.0)} if 100 <= k < 106 else {0.0}
+        assert du == want and dr == want, k
+        assert a.v_left == b.v_left and a.v_right == b.v_right and a.id == b.id
+    assert [e.data for e in events if e.channel != "VISLAM_FEATURES"] == \
+        [e.data for e in clean if e.channel != "VISLAM_FEATURES"]

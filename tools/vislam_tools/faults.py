@@ -1,6 +1,7 @@
 """Fault injection: write a faulty copy of an LCM log, or play a foreign process on the pose channel.
 
     vislam-faults inject IN.lcmlog OUT.lcmlog FAULT [--step K] [--count N] [--seed S] [--offset-us D]
+                         [--pixels P]
     vislam-faults info IN.lcmlog [--step K]
     vislam-faults foreign-poses [--lcm-url URL] [--features-channel C] [--pose-channel C] [--seconds T]
 
@@ -24,6 +25,9 @@ Faults of the contents (the estimator's time and plausibility checks):
     twice        the log followed by itself (the same inputs replayed twice)
     velocity     step K's IMU linear velocity set to 1e300 m/s
     no-imu       the IMU samples of steps K..K+N-1 removed (N = --count, default 100)
+    jump         the frames of steps K..K+N-1 (N = --count, default 24) with every observation moved
+                 by -P, +P, -P, ... px in u (left and right alike; P = --pixels, default 150): a
+                 tracker or camera gone wrong for a while, each frame a different rotation's worth
 """
 
 import argparse
@@ -43,7 +47,7 @@ INT64_MAX = 2**63 - 1
 INT64_MIN = -(2**63)
 
 LOG_FAULTS = ("bad-header", "truncate", "garbage", "empty", "junk-file")
-CONTENT_FAULTS = ("corrupt", "imu-hour", "imu-max", "imu-min", "shift", "twice", "velocity", "no-imu")
+CONTENT_FAULTS = ("corrupt", "imu-hour", "imu-max", "imu-min", "shift", "twice", "velocity", "no-imu", "jump")
 
 
 class Event:
@@ -135,7 +139,7 @@ def _damage(vislam, event, kind, rng):
     return Event(event.number, event.timestamp, event.channel, bytes(data))
 
 
-def inject(in_path, out_path, fault, step=100, count=None, seed=1, offset_us=-HOUR_US,
+def inject(in_path, out_path, fault, step=100, count=None, seed=1, offset_us=-HOUR_US, pixels=150.0,
            imu_channel=channels.IMU, features_channel=channels.FEATURES):
     """Write the faulty copy; returns a dict describing what was done (fault_utime: the first utime
     the fault touches, for no-imu the last sample removed; frames_after: frames of the input with a
@@ -212,6 +216,18 @@ def inject(in_path, out_path, fault, step=100, count=None, seed=1, offset_us=-HO
         # "after the fault" is after the IMU comes back
         fault_utime = vislam.imu_t.decode(events[removed[-1]].data).utime
         info["fault_utime"] = fault_utime
+    elif fault == "jump":
+        n = 24 if count is None else count
+        moved = 0
+        for k in steps[step:step + n]:
+            i = frame_after(events, k, features_channel)
+            msg = vislam.stereo_frame_t.decode(events[i].data)
+            shift = pixels if moved % 2 else -pixels
+            msg.u_left = [u + shift for u in msg.u_left]
+            msg.u_right = [u + shift for u in msg.u_right]
+            chunks[i] = Event(events[i].number, events[i].timestamp, events[i].channel, msg.encode())
+            moved += 1
+        info["frames_moved"] = moved
     else:
         raise ToolError(f"unknown fault {fault}; one of {', '.join(LOG_FAULTS + CONTENT_FAULTS)}")
     write_log(out_path, chunks)
@@ -270,9 +286,10 @@ def build_parser():
     i.add_argument("output", metavar="OUT.lcmlog")
     i.add_argument("fault", choices=LOG_FAULTS + CONTENT_FAULTS)
     i.add_argument("--step", type=int, default=100, help="the step the fault hits (default 100)")
-    i.add_argument("--count", type=int, default=None, help="corrupt: copies (10); no-imu: steps (100)")
+    i.add_argument("--count", type=int, default=None, help="corrupt: copies (10); no-imu: steps (100); jump: frames (24)")
     i.add_argument("--seed", type=int, default=1)
     i.add_argument("--offset-us", type=int, default=-HOUR_US, help="shift: utime offset, us (default -1 h)")
+    i.add_argument("--pixels", type=float, default=150.0, help="jump: how far each frame's observations move, px (default 150)")
     i.add_argument("--imu-channel", default=channels.IMU)
     i.add_argument("--features-channel", default=channels.FEATURES)
     n = sub.add_parser("info", help="steps of a log and the utime of a step")
@@ -292,7 +309,7 @@ def main(argv=None):
     try:
         if args.command == "inject":
             info = inject(args.input, args.output, args.fault, step=args.step, count=args.count, seed=args.seed,
-                          offset_us=args.offset_us, imu_channel=args.imu_channel,
+                          offset_us=args.offset_us, pixels=args.pixels, imu_channel=args.imu_channel,
                           features_channel=args.features_channel)
             print(" ".join(f"{k}={v}" for k, v in info.items()))
         elif args.command == "info":
