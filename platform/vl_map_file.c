@@ -3,6 +3,8 @@
 
 #include <math.h>
 
+#include "vl_trajectory_file.h"
+
 void vl_map_point_from_landmark(const vl_landmark_t *landmark, vl_map_point_t *out)
 {
     out->id = landmark->id;
@@ -33,12 +35,10 @@ int vl_map_write_ply(FILE *f, const vl_map_point_t *points, size_t count)
             count);
     for (size_t i = 0; i < count; ++i) {
         const vl_map_point_t *p = &points[i];
-        /* The time exactly from the microseconds, as the TUM writer prints it (any sign). */
-        const int64_t t = p->first_utime;
-        const uint64_t mag = t < 0 ? (uint64_t)0 - (uint64_t)t : (uint64_t)t;
-        fprintf(f, "%.9g %.9g %.9g %d %.9g %u %s%llu.%06llu\n", (double)p->position[0], (double)p->position[1],
-                (double)p->position[2], (int)p->id, (double)p->sigma, (unsigned)p->observations, t < 0 ? "-" : "",
-                (unsigned long long)(mag / 1000000u), (unsigned long long)(mag % 1000000u));
+        char t[VL_TRAJECTORY_TIME_MAX];
+        vl_trajectory_format_time(t, sizeof(t), p->first_utime);
+        fprintf(f, "%.9g %.9g %.9g %d %.9g %u %s\n", (double)p->position[0], (double)p->position[1],
+                (double)p->position[2], (int)p->id, (double)p->sigma, (unsigned)p->observations, t);
     }
     return ferror(f) ? -1 : 0;
 }

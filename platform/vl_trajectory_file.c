@@ -7,17 +7,24 @@
 
 #include "vl_msg.h"
 
+int vl_trajectory_format_time(char *buf, size_t len, int64_t utime)
+{
+    const char *sign = utime < 0 ? "-" : "";
+    const uint64_t mag = utime < 0 ? (uint64_t)0 - (uint64_t)utime : (uint64_t)utime;
+    const int n = snprintf(buf, len, "%s%llu.%06llu", sign, (unsigned long long)(mag / 1000000u),
+                           (unsigned long long)(mag % 1000000u));
+    return (n < 0 || (size_t)n >= len) ? -1 : n;
+}
+
 int vl_trajectory_format_line(char *buf, size_t len, int64_t utime, const vl_pose_t *pose)
 {
     double q[4];
     /* The conversion the pose messages use, so every output prints the same quaternion. */
     vl_rotation_to_quaternion(pose->rotation, q);
-    /* Seconds printed exactly from the integer microseconds. */
-    const char *sign = utime < 0 ? "-" : "";
-    const uint64_t mag = utime < 0 ? (uint64_t)0 - (uint64_t)utime : (uint64_t)utime;
-    const int n = snprintf(buf, len, "%s%llu.%06llu %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", sign,
-                           (unsigned long long)(mag / 1000000u), (unsigned long long)(mag % 1000000u),
-                           pose->position[0], pose->position[1], pose->position[2], q[1], q[2], q[3], q[0]);
+    char t[VL_TRAJECTORY_TIME_MAX];
+    vl_trajectory_format_time(t, sizeof(t), utime);
+    const int n = snprintf(buf, len, "%s %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", t, pose->position[0], pose->position[1],
+                           pose->position[2], q[1], q[2], q[3], q[0]);
     if (n < 0 || (size_t)n >= len) {
         return -1;
     }

@@ -35,6 +35,16 @@ typedef struct {
     char buffer[4096]; /**< stdio buffer (setvbuf) */
 } vl_trajectory_file_t;
 
+/** Room for vl_trajectory_format_time's text, with its terminator. */
+#define VL_TRAJECTORY_TIME_MAX 24
+
+/**
+ * A time in seconds, printed exactly from the integer microseconds ("-" when negative, 6
+ * decimals), as every output that pairs with a TUM file by time prints it.
+ * @return its length, or -1 if @p len is too small
+ */
+int vl_trajectory_format_time(char *buf, size_t len, int64_t utime);
+
 /**
  * Formats one TUM line (with its newline) into @p buf.
  * @return the line's length, or -1 if @p len is too small

@@ -199,9 +199,9 @@ static void map_sink(void *user, const vl_landmark_t *lm)
 /* A time exactly as the TUM writer prints it (s, 6 decimals), so the per-frame files pair by time. */
 static void write_time(FILE *f, int64_t utime)
 {
-    const char *sign = utime < 0 ? "-" : "";
-    const uint64_t mag = utime < 0 ? (uint64_t)0 - (uint64_t)utime : (uint64_t)utime;
-    fprintf(f, "%s%llu.%06llu", sign, (unsigned long long)(mag / 1000000u), (unsigned long long)(mag % 1000000u));
+    char t[VL_TRAJECTORY_TIME_MAX];
+    vl_trajectory_format_time(t, sizeof(t), utime);
+    fputs(t, f);
 }
 
 /* One line per pose: the time exactly as the TUM writer prints it, so the two files pair by
@@ -316,17 +316,9 @@ static int write_ply(const char *path, const map_t *m)
     return 0;
 }
 
-typedef vl_counter_entry_t named_count_t;
-
-/* The core counters in declaration order. */
-static size_t core_counter_list(const vl_counters_t *c, named_count_t *out)
-{
-    return vl_counters_list(c, out);
-}
-
 /* The log reader's counts, then the session's (named once, in vl_session.h), then the lines written. */
 static size_t run_counter_list(const vl_session_t *ss, const vl_log_reader_stats_t *rs, int truncated,
-                               uint64_t trajectory_lines, named_count_t *out)
+                               uint64_t trajectory_lines, vl_counter_entry_t *out)
 {
     size_t n = 0;
 #define RUN_COUNT(label, expr) out[n].name = label, out[n].value = (uint64_t)(expr), ++n
@@ -356,7 +348,7 @@ static int write_stats_json(const char *path, const options_t *o, const vl_sessi
         fprintf(stderr, "vislam-run: cannot write stats %s: %s\n", path, strerror(errno));
         return -1;
     }
-    named_count_t list[64];
+    vl_counter_entry_t list[64];
     fprintf(f, "{\n  \"log\": ");
     vl_json_string(f, o->log_path);
     fprintf(f, ",\n  \"mode\": \"%s\",\n  \"max_landmarks\": %u,\n", vl_mode_name(cfg->mode),
@@ -367,7 +359,7 @@ static int write_stats_json(const char *path, const options_t *o, const vl_sessi
     fprintf(f, "  \"run\": {\n");
     vl_json_counts(f, "    ", list, run_counter_list(ss, rs, truncated, k->trajectory_lines, list));
     fprintf(f, "  },\n  \"core_counters\": {\n");
-    vl_json_counts(f, "    ", list, core_counter_list(vl_session_core_counters(ss), list));
+    vl_json_counts(f, "    ", list, vl_counters_list(vl_session_core_counters(ss), list));
     fprintf(f, "  },\n");
     vl_json_core_status(f, "  ", ss);
     if (o->timing) {
@@ -575,7 +567,7 @@ int main(int argc, char **argv)
     }
 
     if (!o.quiet) {
-        named_count_t list[64];
+        vl_counter_entry_t list[64];
         const vl_config_t *used = vl_session_config(&session);
         fprintf(stderr, "vislam-run: %s (mode %s, window %u, calibration from %s)\n", o.log_path,
                 vl_mode_name(used->mode), (unsigned)used->max_landmarks, vl_session_calibration_source(&session));
@@ -595,7 +587,7 @@ int main(int argc, char **argv)
         if (!vl_session_initialized(&session)) {
             fprintf(stderr, " (estimator never initialized)");
         }
-        k = core_counter_list(vl_session_core_counters(&session), list);
+        k = vl_counters_list(vl_session_core_counters(&session), list);
         for (size_t i = 0; i < k; ++i) {
             if (list[i].value != 0) {
                 fprintf(stderr, " %s %llu", list[i].name, (unsigned long long)list[i].value);

@@ -671,15 +671,11 @@ static void on_landmark(void *user, const vl_landmark_t *landmark)
     const int64_t t0 = vl_clock_monotonic_ns();
     /* The world it is in: the re-initializations so far (a reset later in this step starts another). */
     const int64_t world = (int64_t)vl_session_core_counters(&d->session)->resets;
-    if (d->map_msg.count > 0 && d->map_msg.world != world) {
-        publish_map(d);
+    if ((d->map_msg.count > 0 && d->map_msg.world != world) || d->map_msg.count == VISLAM_LANDMARKS_T_MAX_LANDMARKS) {
+        publish_map(d); /* a batch holds one world, and at most MAX_LANDMARKS */
     }
     d->map_msg.world = world;
-    if (vl_msg_add_landmark(landmark, &d->map_msg) == VL_MSG_ERR_COUNT) {
-        publish_map(d);
-        d->map_msg.world = world;
-        vl_msg_add_landmark(landmark, &d->map_msg);
-    }
+    vl_msg_add_landmark(landmark, &d->map_msg);
     d->sink_ns += vl_clock_monotonic_ns() - t0;
 }
 
