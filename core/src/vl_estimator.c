@@ -79,6 +79,7 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
     e->linear_velocity_var = cfg->linear_velocity_noise * cfg->linear_velocity_noise;
     e->angular_velocity_var = cfg->angular_velocity_noise * cfg->angular_velocity_noise;
     e->pixel_var = cfg->pixel_noise * cfg->pixel_noise;
+    e->angular_velocity_var_reopened = VL_NOISE_REOPEN_RATIO * e->angular_velocity_var;
     keep_sound(e); /* a divergence before any input passed goes back here */
     e->initialized = 1;
 }

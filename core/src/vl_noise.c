@@ -1,7 +1,8 @@
 /*
  * Covariance matching, one bounded step per frame: the pixel noise from the
- * post-fit residuals, the velocity noise from the pose correction, and a
- * widening when frame after frame contradicts the prior. Bounded work, no
+ * post-fit residuals, the velocity noise from the pose correction, a widening
+ * when frame after frame contradicts the prior, and the angular offsets'
+ * covariance reopened as the angular noise climbs. Bounded work, no
  * allocation, deterministic.
  */
 #include "vl_noise.h"
@@ -280,6 +281,7 @@ void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uin
             *var[b] * exp(gain * vl_noise_log_ratio_step(seen / expected, expected * expected / spread)),
             configured[b]);
     }
+    vl_noise_reopen_angular_offset(e);
 }
 
 /* One variance widened, up to VL_NOISE_WIDEN_RANGE of the configured std (never lowered by it). */
@@ -297,4 +299,29 @@ void vl_noise_widen(vl_estimator_t *e)
     e->linear_velocity_var = widen(e->linear_velocity_var, e->cfg.linear_velocity_noise);
     e->angular_velocity_var = widen(e->angular_velocity_var, e->cfg.angular_velocity_noise);
     e->pixel_var = widen(e->pixel_var, e->cfg.pixel_noise);
+    vl_noise_reopen_angular_offset(e);
+}
+
+void vl_noise_reopen_angular_offset(vl_estimator_t *e)
+{
+    if (!e->cfg.estimate_input_offsets || !(e->angular_velocity_var > e->angular_velocity_var_reopened)) {
+        return;
+    }
+    const double rise = e->angular_velocity_var / e->angular_velocity_var_reopened;
+    const double prior = e->cfg.angular_offset_prior * e->cfg.angular_offset_prior;
+    e->angular_velocity_var_reopened = e->angular_velocity_var;
+    const uint32_t n = vl_state_dim(e);
+    double *P = vl_P(e);
+    for (uint32_t i = VL_IDX_OFFSET_ANG; i < VL_IDX_OFFSET_ANG + 3u; ++i) {
+        const double var = P[(size_t)i * VL_LD + i];
+        const double f2 = var * rise > prior ? prior / var : rise;
+        if (!(f2 > 1.0)) {
+            continue; /* at its prior already (or above it, by the offset's walk) */
+        }
+        const double f = sqrt(f2);
+        for (uint32_t j = 0; j < n; ++j) {
+            P[(size_t)j * VL_LD + i] *= f; /* row i */
+            P[(size_t)i * VL_LD + j] *= f; /* column i; P_ii takes both */
+        }
+    }
 }

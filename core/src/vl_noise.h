@@ -19,6 +19,10 @@
 /** Observations from which a frame determines the pose on its own (48 rows for 6 unknowns): its
  * correction is then a sample of the pose error whatever the prior and the pixel noise say. */
 #define VL_NOISE_DENSE_FRAME 16u
+/** Rise of the adapted angular variance over its configured value (2x the std) from which the
+ * angular offsets' covariance is reopened (vl_noise_reopen_angular_offset): above the adaptation's
+ * own spread around a right prior (0.8 to 1.2x the std on 0027). */
+#define VL_NOISE_REOPEN_RATIO 4.0
 /** Median of the chi-square distribution with one degree of freedom: a median of squares to a variance. */
 #define VL_NOISE_CHI2_1_MEDIAN 0.455
 
@@ -46,6 +50,18 @@ void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uin
 /** A frame that contradicts the prior after others did: widens all three noise levels (x4 in
  * variance, up to 20x the configured std; a level already above that stays). */
 void vl_noise_widen(vl_estimator_t *e);
+
+/**
+ * The angular offsets were learned at the angular noise of their time: under a noise too small,
+ * each frame's rotation error counted as the offset's, and their variance shrank for it. When
+ * the adapted angular variance rises past the highest it has been (at first
+ * VL_NOISE_REOPEN_RATIO x the configured one) by a factor g, the angular offsets' rows and
+ * columns of P scale by sqrt(g), each offset's variance up to its prior: the certainty earned
+ * at the smaller noise is given back, and the correlations stay. Nothing without offset states.
+ * The linear offsets are left alone: reopened alike they took up the vision's scale errors
+ * again (README, Accuracy). Called after each change of the velocity noise; P settled.
+ */
+void vl_noise_reopen_angular_offset(vl_estimator_t *e);
 
 /**
  * The stereo rows' white pixel noise (e->stereo_row_var, per coordinate) from the

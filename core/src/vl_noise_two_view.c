@@ -458,5 +458,6 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
     }
     match_block(e, 0, C, dx, q, &e->linear_velocity_var, e->cfg.linear_velocity_noise);
     match_block(e, 1, C, dx, q, &e->angular_velocity_var, e->cfg.angular_velocity_noise);
+    vl_noise_reopen_angular_offset(e);
     return 1;
 }

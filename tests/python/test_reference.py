@@ -191,6 +191,22 @@ def test_reference_agrees_when_the_pixel_estimate_drops(build_dir, tmp_path, mon
     assert compare_tool.main([*args, "--config", str(ini)]) == 1
 
 
+def test_reference_agrees_when_the_angular_offsets_reopen(build_dir, tmp_path, monkeypatch):
+    """From an angular prior 10x too small the sample's frames raise the angular estimate past twice
+    the configured std by frame 11, and the angular offsets' covariance is reopened as it climbs, in
+    the reference too (it agrees), and that matters (without the reopening in the reference alone the
+    poses move)."""
+    from reference import compare as compare_tool
+    from reference import vl_reference
+    ini = tmp_path / "angular_x0.1.ini"
+    ini.write_text("[noise]\nangular_velocity = 0.005\n")
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "40")
+    assert_agrees(rc, fig, 40)
+    monkeypatch.setattr(vl_reference, "REOPEN_RATIO", float("inf"))
+    args = [str(SAMPLE), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", "40"]
+    assert compare_tool.main([*args, "--config", str(ini)]) == 1
+
+
 def test_reference_agrees_without_outlier_rejection(build_dir, tmp_path):
     """gate_chi2 = 0 (no outlier test at all) with the noise adapted: every row is used and read by the
     adaptation. Without rejection the sample's outliers leave worse-conditioned updates, so the two

@@ -57,6 +57,7 @@ LOG_RATIO_BIAS = (0.768765, 0.593114, 0.479665, 0.400083, 0.341355)
 VELOCITY_MIN_INFORMATION = 1e-12
 WIDEN_ON_CONTRADICTION = 4.0
 WIDEN_RANGE = 20.0          # the widening stops at this factor of the configured std
+REOPEN_RATIO = 4.0          # angular variance over its configured value from which the angular offsets reopen
 SERIES_ANGLE = 1.0           # below this angle (rad) the Lie-group coefficients come from series
 SERIES_TERMS = 14
 STEREO_SHARE = np.array([1.0, 0.5, 1.0])  # noise of [u_left, (v_left + v_right) / 2, u_right] / s^2
@@ -364,6 +365,7 @@ class Filter:
             self.P[9:12, 9:12] = np.eye(3) * cfg["angular_offset_prior"] ** 2
         self.var_v = cfg["linear_velocity"] ** 2
         self.var_w = cfg["angular_velocity"] ** 2
+        self.var_w_reopened = REOPEN_RATIO * self.var_w  # the angular variance the offsets were last reopened for
         self.var_px = cfg["pixel"] ** 2
         self.px_log_ratio = 0.0     # fast average of a dense frame's log(sample / var_px)
         self.var_rows = 0.0         # px^2: the stereo rows' white noise, 0 until measured
@@ -1047,6 +1049,7 @@ class Filter:
             ratio = min(max(float(dx[sl] @ dx[sl]) / expected, VELOCITY_RATIO_MIN), VELOCITY_RATIO_MAX)
             step = TWO_VIEW_GAIN * 3.0 * noise / expected * (math.log(ratio) + log_ratio_bias(expected * expected / spread))
             setattr(self, name, _clamp_var(getattr(self, name) * math.exp(step), self.cfg[key]))
+        self.reopen_angular_offset()
         return True
 
     def adapt_velocity_noise(self, prior_pose, used):
@@ -1079,6 +1082,7 @@ class Filter:
             gain = VELOCITY_NOISE_GAIN if dense else VELOCITY_SPARSE_GAIN * (removed / prior)
             step = gain * (math.log(ratio) + log_ratio_bias(expected * expected / spread))
             setattr(self, name, _clamp_var(getattr(self, name) * math.exp(step), self.cfg[key]))
+        self.reopen_angular_offset()
 
     def widen_noise(self):
         """Frame after frame contradicting the prior: every noise x4, up to WIDEN_RANGE times the
@@ -1090,6 +1094,24 @@ class Filter:
         self.var_v = widen(self.var_v, self.cfg["linear_velocity"])
         self.var_w = widen(self.var_w, self.cfg["angular_velocity"])
         self.var_px = widen(self.var_px, self.cfg["pixel"])
+        self.reopen_angular_offset()
+
+    def reopen_angular_offset(self):
+        """The angular offsets were learned at the angular noise of their time: when the adapted
+        angular variance rises past the highest it has been (at first REOPEN_RATIO x the configured
+        one) by g, their rows and columns of P scale by sqrt(g), each variance up to its prior."""
+        if not self.cfg["estimate_input_offsets"] or not self.var_w > self.var_w_reopened:
+            return
+        rise = self.var_w / self.var_w_reopened
+        prior = self.cfg["angular_offset_prior"] ** 2
+        self.var_w_reopened = self.var_w
+        for i in range(9, 12):
+            var = self.P[i, i]
+            f2 = prior / var if var * rise > prior else rise
+            if f2 > 1.0:
+                f = math.sqrt(f2)
+                self.P[i, :] *= f
+                self.P[:, i] *= f
 
     # ---- the window (core/src/vl_window.c)
 

@@ -406,6 +406,8 @@ typedef struct {
     double pixel_var;            /**< px^2 */
     double pixel_log_ratio;      /**< fast average of log(sample / pixel_var) over dense frames (vl_noise.c) */
     uint32_t reassociated_run;   /**< consecutive frames distrusted as re-associations */
+    /** (rad/s)^2: the angular variance the angular offsets' covariance was last reopened for (vl_noise.c) */
+    double angular_velocity_var_reopened;
 
     /** The sparse frames' two-view velocity noise matching (vl_noise_two_view.c). */
     double stereo_row_var;      /**< px^2 per coordinate: white pixel noise from v_left - v_right, 0 until seen */
