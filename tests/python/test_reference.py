@@ -175,20 +175,26 @@ def test_reference_agrees_on_moving_tracks(build_dir, tmp_path, monkeypatch):
     assert compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)]) == 1
 
 
+def agrees_and_matters(build_dir, tmp_path, monkeypatch, config, steps, rule_ratio):
+    """The two agree on the sample's first steps under the INI text config, and no longer do once the
+    reference alone sets its constant rule_ratio to infinity (the rule never fires there)."""
+    from reference import compare as compare_tool
+    from reference import vl_reference
+    ini = tmp_path / "rule.ini"
+    ini.write_text(config)
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", str(steps))
+    assert_agrees(rc, fig, steps)
+    monkeypatch.setattr(vl_reference, rule_ratio, float("inf"))
+    args = [str(SAMPLE), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", str(steps)]
+    assert compare_tool.main([*args, "--config", str(ini)]) == 1
+
+
 def test_reference_agrees_when_the_pixel_estimate_drops(build_dir, tmp_path, monkeypatch):
     """From a pixel prior 10x too large the sample's dense frames show a fraction of it: the fast
     average of their log-ratio crosses a ninth by frame 4 and the estimate goes to their level, in the
     reference too (it agrees), and that matters (without the drop in the reference alone the poses
     move)."""
-    from reference import compare as compare_tool
-    from reference import vl_reference
-    ini = tmp_path / "pixel_x10.ini"
-    ini.write_text("[noise]\npixel = 15\n")
-    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "30")
-    assert_agrees(rc, fig, 30)
-    monkeypatch.setattr(vl_reference, "PIXEL_DROP_RATIO", float("inf"))
-    args = [str(SAMPLE), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", "30"]
-    assert compare_tool.main([*args, "--config", str(ini)]) == 1
+    agrees_and_matters(build_dir, tmp_path, monkeypatch, "[noise]\npixel = 15\n", 30, "PIXEL_DROP_RATIO")
 
 
 def test_reference_agrees_when_the_angular_offsets_reopen(build_dir, tmp_path, monkeypatch):
@@ -196,15 +202,7 @@ def test_reference_agrees_when_the_angular_offsets_reopen(build_dir, tmp_path, m
     the configured std by frame 11, and the angular offsets' covariance is reopened as it climbs, in
     the reference too (it agrees), and that matters (without the reopening in the reference alone the
     poses move)."""
-    from reference import compare as compare_tool
-    from reference import vl_reference
-    ini = tmp_path / "angular_x0.1.ini"
-    ini.write_text("[noise]\nangular_velocity = 0.005\n")
-    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "40")
-    assert_agrees(rc, fig, 40)
-    monkeypatch.setattr(vl_reference, "REOPEN_RATIO", float("inf"))
-    args = [str(SAMPLE), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", "40"]
-    assert compare_tool.main([*args, "--config", str(ini)]) == 1
+    agrees_and_matters(build_dir, tmp_path, monkeypatch, "[noise]\nangular_velocity = 0.005\n", 40, "REOPEN_RATIO")
 
 
 def test_reference_agrees_without_outlier_rejection(build_dir, tmp_path):
