@@ -525,6 +525,26 @@ void test_sparse_frames_match_the_pixel_noise(void)
 }
 
 /*
+ * A pixel prior far over the stereo rows' white noise (10 px against 0.3 px, over 15 times their std)
+ * is far too large: on a sparse drive (at most 6 observations a frame) the estimate forgets over 100
+ * observations instead of 1,000 until it comes under that, and is at 3.98 px after 100 frames (7.86
+ * px at the slow memory alone).
+ */
+void test_a_sparse_pixel_prior_far_over_the_rows_comes_down(void)
+{
+    vl_sim_config_t sc;
+    vl_config_t cfg;
+    vl_pose_t pose;
+    scenario(3, 100, 0.3, &sc, &cfg);
+    sc.max_observations = 6;
+    cfg.pixel_noise = 10.0;
+    adapted_noise(&sc, &cfg, &pose);
+    printf("sparse, pixel prior 10 px: adapted %.3f px after 100 frames (true %.3f)\n", pose.pixel_noise,
+           sc.pixel_noise);
+    TEST_ASSERT_TRUE(pose.pixel_noise < 5.0);
+}
+
+/*
  * A landmark a sparse frame admits at first sight is checked at its second
  * sighting, before any update uses it, and on a sparse frame every track is
  * checked against the motion the frame's other tracks agree on: a track on an
@@ -645,6 +665,7 @@ int main(void)
     RUN_TEST(test_stereo_rows_measure_the_white_pixel_noise);
     RUN_TEST(test_sparse_frames_match_the_velocity_noise_on_two_views);
     RUN_TEST(test_sparse_frames_match_the_pixel_noise);
+    RUN_TEST(test_a_sparse_pixel_prior_far_over_the_rows_comes_down);
     RUN_TEST(test_second_sight_breaks_tracks_on_moving_objects);
     RUN_TEST(test_realistic_sparse_drives_with_noisy_velocities_do_no_harm);
     RUN_TEST(test_realistic_sparsest_clean_drive_does_no_harm);

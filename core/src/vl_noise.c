@@ -12,8 +12,14 @@
 #include "vl_estimator_internal.h"
 #include "vl_se3.h"
 
-/* Rows of evidence the pixel noise estimate averages over (its forgetting scale). */
+/* Observations the pixel noise estimate averages over (its forgetting scale). */
 #define VL_PIXEL_NOISE_MEMORY 1000.0
+/* The same while the estimate's std is over VL_PIXEL_FAR_FROM_ROWS times the stereo rows' white
+ * noise: over what a tracker's errors reach (0027's adapted 0.8 px against rows of 0.27 px, 3x), so
+ * a prior far too large, which at the slow memory a sparse drive takes hundreds of frames to shed.
+ * Measured at 6, 10 and 15 and at 100 and 200 (README, Accuracy). */
+#define VL_PIXEL_NOISE_FAST_MEMORY 100.0
+#define VL_PIXEL_FAR_FROM_ROWS 15.0
 /* Largest pixel variance sample, in variances in use: 10 sigma (lower caps cost the sparsest noisy cells). */
 #define VL_PIXEL_SAMPLE_CAP 100.0
 /* Observations under which a frame's pixel rows count against their expected post-fit variance
@@ -183,7 +189,10 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
             return;
         }
     }
-    const double w = 1.0 - exp(-(double)(n / VL_OBS_DIM) / VL_PIXEL_NOISE_MEMORY);
+    const double far = VL_PIXEL_FAR_FROM_ROWS * VL_PIXEL_FAR_FROM_ROWS * e->stereo_row_var;
+    const double memory =
+        e->stereo_row_var > 0.0 && e->pixel_var > far ? VL_PIXEL_NOISE_FAST_MEMORY : VL_PIXEL_NOISE_MEMORY;
+    const double w = 1.0 - exp(-(double)(n / VL_OBS_DIM) / memory);
     e->pixel_var = vl_noise_clamp_var((1.0 - w) * e->pixel_var + w * sample, e->cfg.pixel_noise);
 }
 

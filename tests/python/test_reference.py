@@ -205,6 +205,13 @@ def test_reference_agrees_when_the_angular_offsets_reopen(build_dir, tmp_path, m
     agrees_and_matters(build_dir, tmp_path, monkeypatch, "[noise]\nangular_velocity = 0.005\n", 40, "REOPEN_RATIO")
 
 
+def test_reference_agrees_when_the_pixel_estimate_is_far_over_the_rows(build_dir, tmp_path, monkeypatch):
+    """From a pixel prior of 30 px, over 15 times the std of the sample's stereo rows, the pixel
+    estimate forgets over 100 observations instead of 1,000 until it comes down, in the reference too
+    (it agrees), and that matters (without it in the reference alone the poses move)."""
+    agrees_and_matters(build_dir, tmp_path, monkeypatch, "[noise]\npixel = 30\n", 30, "PIXEL_FAR_FROM_ROWS")
+
+
 def test_reference_agrees_without_outlier_rejection(build_dir, tmp_path):
     """gate_chi2 = 0 (no outlier test at all) with the noise adapted: every row is used and read by the
     adaptation. Without rejection the sample's outliers leave worse-conditioned updates, so the two

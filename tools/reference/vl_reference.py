@@ -37,7 +37,9 @@ MAX_FRAME_FEATURES = 256
 AGE_BONUS, AGE_CAP = 0.5, 4  # admission score: disparity x (1 + 0.5 min(age, 4))
 NOISE_ADAPT_RANGE = 100.0    # adapted standard deviations stay within 100x of the configured ones
 CONTRADICTION_RUN = 2        # re-associated frames in a row that widen the noise
-PIXEL_NOISE_MEMORY = 1000.0  # rows the pixel noise estimate averages over
+PIXEL_NOISE_MEMORY = 1000.0  # observations the pixel noise estimate averages over
+PIXEL_NOISE_FAST_MEMORY = 100.0  # the same while its std is over PIXEL_FAR_FROM_ROWS x the stereo rows' noise
+PIXEL_FAR_FROM_ROWS = 15.0
 CHI2_1_MEDIAN = 0.455        # median of chi-square(1): a median of squares to a variance
 PIXEL_SAMPLE_CAP = 100.0     # a pixel variance sample counts for at most this many variances in use
 PIXEL_SPARSE_FRAME = 12      # observations under which a frame's pixel rows count against their post-fit variance
@@ -896,7 +898,8 @@ class Filter:
         5 % of R_rr left out). The median over the used and the rejected rows (the deferred ones
         left out), each capped at 100 variances in use (a frame of one or two rows has no majority
         to outvote an outlier), / 0.455, enters an average that forgets faster the more rows there
-        are. A frame is sparse under PIXEL_SPARSE_FRAME observations. A dense frame's sample (floored
+        are (PIXEL_NOISE_FAST_MEMORY instead of PIXEL_NOISE_MEMORY observations while its std is over
+        PIXEL_FAR_FROM_ROWS times the stereo rows'). A frame is sparse under PIXEL_SPARSE_FRAME observations. A dense frame's sample (floored
         at a hundredth of the estimate) also enters a fast average of its log-ratio to the estimate;
         under -log(PIXEL_DROP_RATIO) the estimate goes to exp(average) times itself, the average to 0."""
         sparse = frame_observations < PIXEL_SPARSE_FRAME
@@ -925,7 +928,8 @@ class Filter:
                 self.var_px = _clamp_var(self.var_px * math.exp(self.px_log_ratio), self.cfg["pixel"])
                 self.px_log_ratio = 0.0
                 return
-        w = 1.0 - math.exp(-(len(samples) // 3) / PIXEL_NOISE_MEMORY)
+        far = self.var_rows > 0.0 and self.var_px > PIXEL_FAR_FROM_ROWS ** 2 * self.var_rows
+        w = 1.0 - math.exp(-(len(samples) // 3) / (PIXEL_NOISE_FAST_MEMORY if far else PIXEL_NOISE_MEMORY))
         self.var_px = _clamp_var((1.0 - w) * self.var_px + w * sample, self.cfg["pixel"])
 
     # ---- the sparse frames' two-view velocity noise (core/src/vl_noise_two_view.c)
