@@ -14,22 +14,10 @@
 
 static vl_estimator_t est;
 
-static void kitti_config(vl_config_t *cfg)
-{
-    vl_config_default(cfg);
-    vl_test_kitti_calibration(&cfg->calibration, 1);
-}
-
 /* A frame seeing n landmarks ahead of the vehicle (IMU x forward). */
 static void make_frame(const vl_config_t *cfg, vl_stereo_frame_t *f, int64_t utime, uint32_t n, int32_t first_id)
 {
-    f->utime = utime;
-    f->count = n;
-    for (uint32_t i = 0; i < n; ++i) {
-        double pw[3];
-        vl_test_point_ahead(i, pw);
-        vl_test_observe(&cfg->calibration, pw, first_id + (int32_t)i, &f->obs[i]);
-    }
+    vl_test_frame_ahead(&cfg->calibration, f, utime, n, first_id);
 }
 
 /* vl_init, then the first IMU sample (at rest) at utime, which sets the clock. */
@@ -58,7 +46,7 @@ void test_init_rejects_null_and_missing_calibration(void)
     TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_init(NULL, &cfg));
     TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_init(&est, NULL));
     TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_init(&est, &cfg));
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
 }
 
@@ -66,7 +54,7 @@ void test_init_rejects_misaligned_estimator(void)
 {
     static unsigned char storage[sizeof(vl_estimator_t) + VL_ESTIMATOR_ALIGN] VL_ALIGNED(VL_ESTIMATOR_ALIGN);
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     vl_estimator_t *shifted = (vl_estimator_t *)(void *)(storage + 8);
     TEST_ASSERT_EQUAL_INT(VL_ERR_MISALIGNED, vl_init(shifted, &cfg));
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init((vl_estimator_t *)(void *)storage, &cfg));
@@ -75,23 +63,23 @@ void test_init_rejects_misaligned_estimator(void)
 void test_config_check_rejects_out_of_range_values(void)
 {
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_config_check(&cfg));
     cfg.max_landmarks = VL_MAX_LANDMARKS + 1u;
     TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.max_landmarks = 0;
     TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.pixel_noise = NAN;
     TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.linear_velocity_noise = -1.0;
     TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.calibration.cam_T_imu[0] = 2.0; /* not a rotation */
     TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.mode = (vl_mode_t)7;
     TEST_ASSERT_EQUAL_INT(VL_ERR_CONFIG, vl_config_check(&cfg));
 }
@@ -99,7 +87,7 @@ void test_config_check_rejects_out_of_range_values(void)
 void test_propagate_rejects_nan_and_counts_it(void)
 {
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     vl_imu_sample_t s = vl_test_imu_at(1000000, 1.0, 0.0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
@@ -117,7 +105,7 @@ void test_propagate_rejects_nan_and_counts_it(void)
 void test_propagate_rejects_non_increasing_time(void)
 {
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     vl_imu_sample_t s = vl_test_imu_at(2000000, 1.0, 0.0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
@@ -131,7 +119,7 @@ void test_update_before_first_imu_is_not_ready(void)
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     make_frame(&cfg, &frame, 1000000, 10, 0);
     TEST_ASSERT_EQUAL_INT(VL_ERR_NOT_READY, vl_update(&est, &frame));
@@ -142,7 +130,7 @@ void test_update_rejects_frame_out_of_time_order(void)
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, 10, 0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
@@ -156,7 +144,7 @@ void test_update_truncates_oversized_frame_and_counts_it(void)
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, VL_MAX_FRAME_FEATURES, 0);
@@ -172,7 +160,7 @@ void test_update_counts_invalid_observations(void)
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, 6, 0);
@@ -191,7 +179,7 @@ void test_update_counts_a_repeated_image_and_nothing_else(void)
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1100000, 6, 0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
@@ -211,7 +199,7 @@ void test_update_counts_a_repeated_image_and_nothing_else(void)
 /* A window of 6 landmarks (ids 0..5): the same frame twice admits its tracks. */
 static void window_of_six(vl_config_t *cfg, vl_stereo_frame_t *frame)
 {
-    kitti_config(cfg);
+    vl_test_kitti_config(cfg);
     start_at(cfg, 1000000);
     make_frame(cfg, frame, 1100000, 6, 0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, frame));
@@ -411,7 +399,7 @@ void test_repeat_noise_acts_at_repeated_images_only(void)
     static vl_stereo_frame_t frame;
     static vl_estimator_t off;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_TRUE(cfg.repeat_anchor_noise > 0.0); /* on by default */
     vl_config_t on_cfg = cfg;
     cfg.repeat_anchor_noise = 0.0;
@@ -450,7 +438,7 @@ void test_repeat_noise_acts_at_repeated_images_only(void)
 void test_propagate_follows_exponential_map(void)
 {
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.estimate_input_offsets = 0;
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     const double u[6] = {5.0, 0.2, -0.1, 0.01, -0.02, 0.3};
@@ -489,7 +477,7 @@ void test_propagate_follows_exponential_map(void)
 static double x_after_two_samples(int interpolate, double vx0, double vx1, int64_t frame_ms)
 {
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.estimate_input_offsets = 0;
     cfg.mode = VL_MODE_IMU_ONLY;
     cfg.interpolate_velocities = interpolate;
@@ -732,7 +720,7 @@ void test_flush_hands_every_landmark_to_the_sink_with_its_marginal(void)
     static vl_landmark_t before[VL_MAX_LANDMARKS];
     memset(&sink, 0, sizeof(sink));
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     cfg.landmark_sink = collect;
     cfg.landmark_sink_user = &sink;
@@ -767,7 +755,7 @@ void test_window_never_exceeds_its_limit_and_keeps_observed_landmarks(void)
     static sink_t sink;
     memset(&sink, 0, sizeof(sink));
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     cfg.max_landmarks = 5;
     cfg.landmark_sink = collect;
@@ -802,7 +790,7 @@ void test_a_sparse_frame_admits_its_new_tracks_at_first_sight(void)
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_UINT32(2, cfg.min_track_length);
     const uint32_t below = cfg.first_sight_below;
     /* Fewer observations than first_sight_below: every new track becomes a landmark now. */
@@ -831,7 +819,7 @@ void test_window_admits_the_largest_disparity_first(void)
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     cfg.max_landmarks = 1;
     start_at(&cfg, 0);
@@ -852,7 +840,7 @@ void test_get_landmarks_reports_capacity_shortfall(void)
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     start_at(&cfg, 0);
     make_frame(&cfg, &frame, 0, 4, 0);
@@ -867,7 +855,7 @@ void test_update_uses_at_most_max_update_observations(void)
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     cfg.max_update_observations = 5;
     vl_imu_sample_t s = start_at(&cfg, 0);
@@ -911,7 +899,7 @@ static uint32_t observations_within(uint32_t n, uint64_t budget)
 void test_update_work_bound_uses_fewer_observations_in_a_larger_window(void)
 {
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     cfg.max_update_observations = 0;
     const uint64_t budget = vl_work_joint_update(VL_CORE_DIM + 3u * 40u, 10u);
@@ -943,7 +931,7 @@ static void updates_under_bound(int rotate, uint32_t updates[12])
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     cfg.max_update_observations = 5;
     cfg.rotate_deferred = rotate;
@@ -983,7 +971,7 @@ void test_admissions_per_frame_are_bounded_and_the_rest_wait(void)
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     cfg.max_admissions = 5;
     vl_imu_sample_t s = start_at(&cfg, 0);
@@ -1020,7 +1008,7 @@ static void two_landmarks_then_a_jump(int64_t last, double du, double dv, vl_pos
 {
     static vl_stereo_frame_t frame;
     vl_config_t cfg;
-    kitti_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
     vl_imu_sample_t s = start_at(&cfg, 0);
     make_frame(&cfg, &frame, 0, 2, 0);

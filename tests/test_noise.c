@@ -11,16 +11,8 @@
 static vl_estimator_t est;
 static double before[VL_LD * VL_LD];
 
-#define T0 1317386436000000LL /* a real drive's start, us */
-#define STEP 100000LL         /* 10 Hz, us */
 #define NUM_POINTS 20u
 #define STEPS 40
-
-static void test_config(vl_config_t *cfg)
-{
-    vl_config_default(cfg);
-    vl_test_kitti_calibration(&cfg->calibration, 1);
-}
 
 /* vl_init, then STEPS steps of a vehicle standing before fixed points: the frames hold the pose
  * still, so the offsets are learned and correlated with the pose and the landmarks. */
@@ -29,15 +21,10 @@ static void stand(const vl_config_t *cfg)
     static vl_stereo_frame_t frame;
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, cfg));
     for (int k = 0; k < STEPS; ++k) {
-        const vl_imu_sample_t s = vl_test_imu_at(T0 + k * STEP, 0.0, 0.0);
+        const int64_t t = VL_TEST_T0_US + k * VL_TEST_STEP_US;
+        const vl_imu_sample_t s = vl_test_imu_at(t, 0.0, 0.0);
         TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
-        frame.utime = T0 + k * STEP;
-        frame.count = NUM_POINTS;
-        for (uint32_t i = 0; i < NUM_POINTS; ++i) {
-            double pw[3];
-            vl_test_point_ahead(i, pw);
-            vl_test_observe(&cfg->calibration, pw, (int32_t)i, &frame.obs[i]);
-        }
+        vl_test_frame_ahead(&cfg->calibration, &frame, t, NUM_POINTS, 0);
         TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
     }
     TEST_ASSERT_TRUE(vl_state_dim(&est) > VL_CORE_DIM); /* landmarks in the state */
@@ -68,7 +55,7 @@ static void assert_P_unchanged(void)
 void test_angular_offsets_reopen_as_the_angular_noise_rises(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     stand(&cfg);
     const double configured = cfg.angular_velocity_noise * cfg.angular_velocity_noise;
     TEST_ASSERT_EQUAL_DOUBLE(VL_NOISE_REOPEN_RATIO * configured, est.angular_velocity_var_reopened);
@@ -111,7 +98,7 @@ void test_angular_offsets_reopen_as_the_angular_noise_rises(void)
 void test_angular_offsets_stay_while_the_noise_is_near_its_prior(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     stand(&cfg);
     const double configured = cfg.angular_velocity_noise * cfg.angular_velocity_noise;
     keep_P();
@@ -128,7 +115,7 @@ void test_angular_offsets_stay_while_the_noise_is_near_its_prior(void)
 void test_reopening_stops_at_the_offsets_prior(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     stand(&cfg);
     est.angular_velocity_var = 1e4 * est.angular_velocity_var_reopened;
     vl_noise_reopen_angular_offset(&est);
@@ -142,7 +129,7 @@ void test_reopening_stops_at_the_offsets_prior(void)
 void test_no_reopening_without_offset_states(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.estimate_input_offsets = 0;
     stand(&cfg);
     keep_P();

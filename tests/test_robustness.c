@@ -16,15 +16,9 @@
 static vl_estimator_t est;
 static vl_estimator_t twin; /* a fresh estimator fed what the reset one should be equivalent to */
 
-#define T0 1317386436000000LL /* a real drive's start, us */
-#define STEP 100000LL         /* 10 Hz, us */
+#define T0 VL_TEST_T0_US
+#define STEP VL_TEST_STEP_US
 #define NUM_POINTS 20
-
-static void test_config(vl_config_t *cfg)
-{
-    vl_config_default(cfg);
-    vl_test_kitti_calibration(&cfg->calibration, 1);
-}
 
 /* The map sink: how many landmarks it received, and their observation times' span. */
 static uint32_t mapped;
@@ -45,13 +39,7 @@ static void count_sink(void *user, const vl_landmark_t *landmark)
 /* A frame of a vehicle standing at the identity pose, seeing NUM_POINTS fixed points ahead. */
 static void make_frame(const vl_config_t *cfg, vl_stereo_frame_t *f, int64_t utime)
 {
-    f->utime = utime;
-    f->count = NUM_POINTS;
-    for (uint32_t i = 0; i < NUM_POINTS; ++i) {
-        double pw[3];
-        vl_test_point_ahead(i, pw);
-        vl_test_observe(&cfg->calibration, pw, (int32_t)i, &f->obs[i]);
-    }
+    vl_test_frame_ahead(&cfg->calibration, f, utime, NUM_POINTS, 0);
 }
 
 /* A forward-speed-only IMU sample. */
@@ -112,7 +100,7 @@ void tearDown(void)
 void test_defaults_and_seed_preset_are_valid_and_limits_are_checked(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_config_check(&cfg));
     vl_config_t seed;
     vl_config_preset_seed(&seed);
@@ -159,7 +147,7 @@ void test_every_status_has_a_description(void)
 void test_time_jump_ahead_or_behind_is_refused_and_leaves_the_clock(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&twin, &cfg));
     vl_imu_sample_t s = imu_at(T0, 1.0);
@@ -197,7 +185,7 @@ void test_time_jump_ahead_or_behind_is_refused_and_leaves_the_clock(void)
 void test_int64_max_sample_is_refused_and_the_drive_goes_on(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 3);
     vl_imu_sample_t s = imu_at(INT64_MAX, 0.0);
@@ -219,7 +207,7 @@ void test_int64_max_sample_is_refused_and_the_drive_goes_on(void)
 static void check_recovery_from_first_sample_at(int64_t first_utime)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     vl_imu_sample_t s = imu_at(first_utime, 0.0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
@@ -268,7 +256,7 @@ void test_first_sample_at_int64_max_recovers_within_a_second(void)
 static void check_new_timeline(int64_t shift, vl_status_t refusal)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.landmark_sink = count_sink;
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 20);
@@ -331,7 +319,7 @@ void test_log_replayed_again_a_few_seconds_back_reinitializes(void)
 void test_stray_samples_and_a_stuck_clock_never_switch_timelines(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 2);
     /* A stray sample one hour ahead, consistent with the previous stray, between every clean step. */
@@ -355,7 +343,7 @@ void test_stray_samples_and_a_stuck_clock_never_switch_timelines(void)
 void test_absurd_imu_samples_are_refused_and_counted(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     vl_imu_sample_t s = imu_at(T0, 1.0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
@@ -391,7 +379,7 @@ void test_absurd_imu_samples_are_refused_and_counted(void)
 void test_pixels_outside_the_image_and_absurd_disparity_are_refused(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     const vl_imu_sample_t s = imu_at(T0, 0.0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
@@ -436,7 +424,7 @@ void test_pixels_outside_the_image_and_absurd_disparity_are_refused(void)
 void test_a_sparse_frames_bad_tracks_neither_poison_the_noise_nor_stay(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     static vl_stereo_frame_t f;
     double rows_before = 0.0;
@@ -482,7 +470,7 @@ void test_a_sparse_frames_bad_tracks_neither_poison_the_noise_nor_stay(void)
 void test_a_moving_track_among_three_breaks_at_its_second_contradiction(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     static vl_stereo_frame_t f;
     uint64_t broken[3] = {0, 0, 0};
@@ -513,7 +501,7 @@ void test_a_moving_track_among_three_breaks_at_its_second_contradiction(void)
 void test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_calibration(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.max_speed = 1e308; /* let the absurd velocity through to reach the numerical failure */
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 3);
@@ -548,7 +536,7 @@ void test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_cal
 void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 3);
     /* Offsets as a drive would have learned them (the sensor's, which outlast a divergence). */
@@ -623,7 +611,7 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
 void test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed_out(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 3);
     /* A negative variance: not positive semi-definite. */
@@ -676,7 +664,7 @@ static vl_status_t jumped_step(const vl_config_t *cfg, int k)
 void test_frames_contradicting_the_state_frame_after_frame_reset_the_filter(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.adaptive_noise = 0; /* so the contradiction does not widen the noise until it passes */
     cfg.divergence_frames = 6;
     for (int pass = 0; pass < 2; ++pass) {
@@ -711,7 +699,7 @@ void test_frames_contradicting_the_state_frame_after_frame_reset_the_filter(void
 void test_contradicting_frames_widen_the_noise_only_so_far(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 3);
     int resets_at = -1;
@@ -741,7 +729,7 @@ void test_contradicting_frames_widen_the_noise_only_so_far(void)
 void test_vl_reset_keeps_configuration_and_counters(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.max_landmarks = 7;
     cfg.landmark_sink = count_sink;
     TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_reset(NULL));
@@ -766,7 +754,7 @@ void test_vl_reset_keeps_configuration_and_counters(void)
 void test_frames_without_imu_are_not_propagated_with_a_stale_velocity(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     cfg.mode = VL_MODE_IMU_ONLY; /* the frames only move the clock here */
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     for (int k = 0; k < 10; ++k) {
@@ -812,7 +800,7 @@ void test_frames_without_imu_are_not_propagated_with_a_stale_velocity(void)
 void test_imu_back_after_a_silence_without_frames_is_not_integrated(void)
 {
     vl_config_t cfg;
-    test_config(&cfg);
+    vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     vl_imu_sample_t s = imu_at(T0, 10.0);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));

@@ -19,8 +19,7 @@ void tearDown(void)
 /* Outlier handling and noise adaptation off, no update bound: an update uses every observation. */
 static void plain_config(vl_config_t *cfg)
 {
-    vl_config_default(cfg);
-    vl_test_kitti_calibration(&cfg->calibration, 1);
+    vl_test_kitti_config(cfg);
     cfg->gate_chi2 = 0.0;
     cfg->adaptive_noise = 0;
     cfg->max_update_observations = 0;

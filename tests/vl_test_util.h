@@ -73,4 +73,29 @@ static inline void vl_test_kitti_calibration(vl_calibration_t *cal, int with_ext
     }
 }
 
+/** The default configuration with the KITTI 0027 rig and its real cam_T_imu. */
+static inline void vl_test_kitti_config(vl_config_t *cfg)
+{
+    vl_config_default(cfg);
+    vl_test_kitti_calibration(&cfg->calibration, 1);
+}
+
+/** A frame at utime of a vehicle at the identity pose seeing the first n of the points ahead
+ * (vl_test_point_ahead), with ids first_id, first_id + 1, ... */
+static inline void vl_test_frame_ahead(const vl_calibration_t *cal, vl_stereo_frame_t *f, int64_t utime, uint32_t n,
+                                       int32_t first_id)
+{
+    f->utime = utime;
+    f->count = n;
+    for (uint32_t i = 0; i < n; ++i) {
+        double pw[3];
+        vl_test_point_ahead(i, pw);
+        vl_test_observe(cal, pw, first_id + (int32_t)i, &f->obs[i]);
+    }
+}
+
+/** A real drive's start and the seed data's frame period, us. */
+#define VL_TEST_T0_US 1317386436000000LL
+#define VL_TEST_STEP_US 100000LL
+
 #endif /* VISLAM_TESTS_VL_TEST_UTIL_H */
