@@ -297,8 +297,7 @@ void vl_noise_adapt_velocity(vl_estimator_t *e, const double prior_pose[36], uin
 static double widen(double var, double configured_std)
 {
     const double top = VL_NOISE_WIDEN_RANGE * VL_NOISE_WIDEN_RANGE * configured_std * configured_std;
-    const double wide = var * VL_NOISE_WIDEN_ON_CONTRADICTION;
-    return vl_noise_clamp_var(wide < top ? wide : (var > top ? var : top), configured_std);
+    return vl_noise_clamp_var(fmax(var, fmin(var * VL_NOISE_WIDEN_ON_CONTRADICTION, top)), configured_std);
 }
 
 /* A tracker re-associates on single frames; frame after frame contradicting the
