@@ -1,4 +1,4 @@
-/* Unit tests of the noise adaptation's effect on the covariance: the angular offsets reopened. */
+/* Unit tests of the noise adaptation: the angular offsets reopened, the pixel estimate's floor. */
 #include <math.h>
 #include <string.h>
 
@@ -138,6 +138,37 @@ void test_no_reopening_without_offset_states(void)
     assert_P_unchanged();
 }
 
+/*
+ * A dense frame whose rows were all rejected and kept less than the fit's spread (residual zero,
+ * the pose uncertain) has a median pixel sample under zero: it is floored at a hundredth of the
+ * variance in use, as the cap mirrors, so the average steps toward that, never under zero (which
+ * the clamp turned into the noise 100x under the configured).
+ */
+void test_a_pixel_sample_under_zero_is_floored(void)
+{
+    enum { ROWS = 20 };
+    static vl_la_obs_t rows[ROWS];
+    vl_config_t cfg;
+    vl_test_kitti_config(&cfg);
+    stand(&cfg);
+    memset(rows, 0, sizeof(rows));
+    for (int i = 0; i < ROWS; ++i) {
+        for (int r = 0; r < 3; ++r) {
+            rows[i].H_pose[6 * r + r] = 1e4; /* px per m: (H P H^T)_rr far over the pixel variance */
+            rows[i].noise_var[r] = est.pixel_var;
+        }
+        rows[i].landmark_col = VL_CORE_DIM;
+    }
+    memset(est.work_dx, 0, sizeof(est.work_dx));
+    const double var = est.pixel_var;
+    TEST_ASSERT_TRUE(1e8 * vl_P_value(&est, 0, 0) > 1e3 * var); /* each sample e^2 - fit is under zero */
+    vl_noise_adapt_pixel(&est, rows, 0, 0, ROWS, ROWS);
+    /* one frame's step toward var / 100: at most its weight (20 observations of 1,000 or 100) */
+    const double w = 1.0 - exp(-(double)ROWS / 100.0);
+    TEST_ASSERT_TRUE(est.pixel_var < var);
+    TEST_ASSERT_TRUE(est.pixel_var >= (1.0 - w) * var + w * var / 100.0 - 1e-12);
+}
+
 void setUp(void)
 {
 }
@@ -153,5 +184,6 @@ int main(void)
     RUN_TEST(test_angular_offsets_stay_while_the_noise_is_near_its_prior);
     RUN_TEST(test_reopening_stops_at_the_offsets_prior);
     RUN_TEST(test_no_reopening_without_offset_states);
+    RUN_TEST(test_a_pixel_sample_under_zero_is_floored);
     return UNITY_END();
 }

@@ -176,12 +176,16 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
     for (uint32_t i = 0; i < n; ++i) {
         samples[i] = samples[i] > cap ? cap : samples[i];
     }
-    const double sample = vl_noise_select_kth(samples, n, n / 2u) / VL_NOISE_CHI2_1_MEDIAN;
+    /* A dense frame's median is at or under zero when most of its rows are rejected ones that
+     * kept less than the fit's spread (after a burst of bad frames widened the velocity noise, the
+     * pose's uncertainty dwarfs the pixels'): it says the pixel noise is small against that spread,
+     * not what it is. The floor mirrors the cap; unfloored, one such frame took the average under
+     * zero, to the clamp 100x under the configured noise (README, Robustness). */
+    const double median = vl_noise_select_kth(samples, n, n / 2u) / VL_NOISE_CHI2_1_MEDIAN;
+    const double floor = e->pixel_var / VL_PIXEL_SAMPLE_CAP;
+    const double sample = median > floor ? median : floor;
     if (!sparse) {
-        /* A dense frame's median is at or under zero when most of its rows are rejected ones
-         * that kept less than the fit's spread: the floor mirrors the cap. */
-        const double floor = e->pixel_var / VL_PIXEL_SAMPLE_CAP;
-        const double r = log((sample > floor ? sample : floor) / e->pixel_var);
+        const double r = log(sample / e->pixel_var);
         e->pixel_log_ratio = (1.0 - VL_PIXEL_DROP_GAIN) * e->pixel_log_ratio + VL_PIXEL_DROP_GAIN * r;
         if (e->pixel_log_ratio < -log(VL_PIXEL_DROP_RATIO)) {
             e->pixel_var = vl_noise_clamp_var(e->pixel_var * exp(e->pixel_log_ratio), e->cfg.pixel_noise);

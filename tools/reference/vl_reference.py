@@ -919,10 +919,12 @@ class Filter:
         if len(samples) < 3:
             return
         samples = np.minimum(np.array(samples), PIXEL_SAMPLE_CAP * self.var_px)
-        sample = np.partition(samples, len(samples) // 2)[len(samples) // 2] / CHI2_1_MEDIAN
+        median = np.partition(samples, len(samples) // 2)[len(samples) // 2] / CHI2_1_MEDIAN
+        # a median at or under zero (most rows rejected ones that kept less than the fit's spread)
+        # says the noise is small against that spread, not what it is: floored as the cap mirrors
+        sample = max(median, self.var_px / PIXEL_SAMPLE_CAP)
         if not sparse:
-            floor = self.var_px / PIXEL_SAMPLE_CAP
-            r = math.log(max(sample, floor) / self.var_px)
+            r = math.log(sample / self.var_px)
             self.px_log_ratio = (1.0 - PIXEL_DROP_GAIN) * self.px_log_ratio + PIXEL_DROP_GAIN * r
             if self.px_log_ratio < -math.log(PIXEL_DROP_RATIO):
                 self.var_px = _clamp_var(self.var_px * math.exp(self.px_log_ratio), self.cfg["pixel"])
