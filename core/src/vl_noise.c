@@ -179,8 +179,8 @@ void vl_noise_adapt_pixel(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t u
     /* A dense frame's median is at or under zero when most of its rows are rejected ones that
      * kept less than the fit's spread (after a burst of bad frames widened the velocity noise, the
      * pose's uncertainty dwarfs the pixels'): it says the pixel noise is small against that spread,
-     * not what it is. The floor mirrors the cap; unfloored, one such frame took the average under
-     * zero, to the clamp 100x under the configured noise (README, Robustness). */
+     * not what it is. The floor mirrors the cap, for every frame; unfloored, one such frame took the
+     * average under zero, to the clamp 100x under the configured noise (README, Robustness). */
     const double median = vl_noise_select_kth(samples, n, n / 2u) / VL_NOISE_CHI2_1_MEDIAN;
     const double floor = e->pixel_var / VL_PIXEL_SAMPLE_CAP;
     const double sample = median > floor ? median : floor;
