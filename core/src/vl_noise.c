@@ -38,9 +38,6 @@
 #define VL_VELOCITY_NOISE_GAIN 0.05
 /* Step of a sparse frame that removed all of the block's prior variance. */
 #define VL_VELOCITY_SPARSE_GAIN 0.1
-/* Bounds on what one frame's seen-to-expected correction ratio counts as. */
-#define VL_VELOCITY_RATIO_MIN 0.1
-#define VL_VELOCITY_RATIO_MAX 10.0
 /* A block the frame informed less than this (relative to its prior variance) is left alone. */
 #define VL_VELOCITY_MIN_INFORMATION 1e-12
 /* Variance factor applied when frame after frame contradicts the prior. */

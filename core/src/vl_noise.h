@@ -23,6 +23,9 @@
  * angular offsets' covariance is reopened (vl_noise_reopen_angular_offset): above the adaptation's
  * own spread around a right prior (0.8 to 1.2x the std on 0027). */
 #define VL_NOISE_REOPEN_RATIO 4.0
+/** Bounds on what one frame's seen-to-expected correction ratio counts as. */
+#define VL_VELOCITY_RATIO_MIN 0.1
+#define VL_VELOCITY_RATIO_MAX 10.0
 /** Median of the chi-square distribution with one degree of freedom: a median of squares to a variance. */
 #define VL_NOISE_CHI2_1_MEDIAN 0.455
 

@@ -175,17 +175,18 @@ def test_reference_agrees_on_moving_tracks(build_dir, tmp_path, monkeypatch):
     assert compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)]) == 1
 
 
-def agrees_and_matters(build_dir, tmp_path, monkeypatch, config, steps, rule_ratio):
-    """The two agree on the sample's first steps under the INI text config, and no longer do once the
-    reference alone sets its constant rule_ratio to infinity (the rule never fires there)."""
+def agrees_and_matters(build_dir, tmp_path, monkeypatch, config, steps, rule_ratio, log=SAMPLE):
+    """The two agree on the log's first steps (the sample's by default) under the INI text config, and
+    no longer do once the reference alone sets its constant rule_ratio to infinity (the rule never
+    fires there)."""
     from reference import compare as compare_tool
     from reference import vl_reference
     ini = tmp_path / "rule.ini"
     ini.write_text(config)
-    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", str(steps))
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", str(steps), log=log)
     assert_agrees(rc, fig, steps)
     monkeypatch.setattr(vl_reference, rule_ratio, float("inf"))
-    args = [str(SAMPLE), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", str(steps)]
+    args = [str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", str(steps)]
     assert compare_tool.main([*args, "--config", str(ini)]) == 1
 
 
@@ -211,6 +212,19 @@ def test_reference_agrees_when_the_pixel_estimate_is_far_over_the_rows(build_dir
     estimate forgets over 100 observations instead of 1,000 until it comes down, in the reference too
     (it agrees), and that matters (without it in the reference alone the poses move)."""
     agrees_and_matters(build_dir, tmp_path, monkeypatch, "[noise]\npixel = 30\n", 30, "PIXEL_FAR_FROM_ROWS")
+
+
+def test_reference_agrees_when_the_velocity_moment_estimate_rises(build_dir, tmp_path, monkeypatch):
+    """On a sparse realistic drive (5 observations a frame) from a linear prior 10x too small, the
+    two-view frames' moment estimate of the linear variance lies over 4 times the variance in use
+    once it holds 10 frames, and replaces it, in the reference too (it agrees), and that matters
+    (without the rise in the reference alone the poses move)."""
+    log = tmp_path / "sparse.lcmlog"
+    subprocess.run([str(build_dir / "bin" / "vislam-sim"), "--realistic", "--max-observations", "5", "--steps",
+                    "100", "--seed", "3", "--out", str(log), "--truth", str(tmp_path / "truth.tum")], check=True,
+                   capture_output=True)
+    agrees_and_matters(build_dir, tmp_path, monkeypatch, "[noise]\nlinear_velocity = 0.05\n", 100,
+                       "TWO_VIEW_MOMENT_RISE", log=log)
 
 
 def test_reference_agrees_without_outlier_rejection(build_dir, tmp_path):

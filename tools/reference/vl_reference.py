@@ -59,6 +59,9 @@ LOG_RATIO_BIAS = (0.768765, 0.593114, 0.479665, 0.400083, 0.341355)
 VELOCITY_MIN_INFORMATION = 1e-12
 WIDEN_ON_CONTRADICTION = 4.0
 WIDEN_RANGE = 20.0          # the widening stops at this factor of the configured std
+TWO_VIEW_MOMENT_MEMORY = 300.0  # two-view frames the velocity variances' moment estimate forgets over
+TWO_VIEW_MOMENT_MIN_FRAMES = 10.0  # frames it needs before it counts
+TWO_VIEW_MOMENT_RISE = 4.0  # it replaces a variance it lies over by this factor (upwards only)
 REOPEN_RATIO = 4.0          # angular variance over its configured value from which the angular offsets reopen
 SERIES_ANGLE = 1.0           # below this angle (rad) the Lie-group coefficients come from series
 SERIES_TERMS = 14
@@ -376,6 +379,9 @@ class Filter:
         self.step_t = 0.0           # s: sum of tau since the last frame
         self.prev_repeated = False  # the previous frame repeated the one before it
         self.velocity_matched = False
+        self.moment_num = [0.0, 0.0]  # per block: sum of w a (seen - c), w = 1 / (2 tr M^2), a = 3 sum tau^2
+        self.moment_den = [0.0, 0.0]  # sum of w a^2
+        self.moment_frames = [0.0, 0.0]
         self.moved = set()          # this frame's observations whose track contradicted its fellows' motion
         self.contradicted = set()   # the previous frame's observations whose track alone contradicted q
         self.state_utime = None  # us; None until the first IMU sample
@@ -1052,10 +1058,30 @@ class Filter:
             spread = float((M * M).sum())
             if not expected > 0.0 or not spread > 0.0 or not noise > 0.0:
                 continue
+            if self._moment_rise(blk, name, key, float(dx[sl] @ dx[sl]), expected, spread):
+                continue
             ratio = min(max(float(dx[sl] @ dx[sl]) / expected, VELOCITY_RATIO_MIN), VELOCITY_RATIO_MAX)
             step = TWO_VIEW_GAIN * 3.0 * noise / expected * (math.log(ratio) + log_ratio_bias(expected * expected / spread))
             setattr(self, name, _clamp_var(getattr(self, name) * math.exp(step), self.cfg[key]))
         self.reopen_angular_offset()
+        return True
+
+    def _moment_rise(self, blk, name, key, seen, expected, spread):
+        """The frame enters the block's moment estimate of its variance, E[seen] = c + var a, least
+        squares over the frames weighted by 1 / (2 tr M^2), seen capped at VELOCITY_RATIO_MAX x its
+        expectation; once it holds TWO_VIEW_MOMENT_MIN_FRAMES frames and lies over
+        TWO_VIEW_MOMENT_RISE x the variance in use, it replaces it (upwards only). True when it did."""
+        var = getattr(self, name)
+        keep = math.exp(-1.0 / TWO_VIEW_MOMENT_MEMORY)
+        a, w = 3.0 * self.step_t2, 1.0 / (2.0 * spread)
+        capped = min(seen, VELOCITY_RATIO_MAX * expected)
+        self.moment_num[blk] = keep * self.moment_num[blk] + w * a * (capped - (expected - var * a))
+        self.moment_den[blk] = keep * self.moment_den[blk] + w * a * a
+        self.moment_frames[blk] = keep * self.moment_frames[blk] + 1.0
+        estimate = self.moment_num[blk] / self.moment_den[blk]
+        if self.moment_frames[blk] < TWO_VIEW_MOMENT_MIN_FRAMES or not estimate > TWO_VIEW_MOMENT_RISE * var:
+            return False
+        setattr(self, name, _clamp_var(estimate, self.cfg[key]))
         return True
 
     def adapt_velocity_noise(self, prior_pose, used):

@@ -416,6 +416,11 @@ typedef struct {
     double step_time;           /**< s: sum of tau over the same steps */
     int prev_frame_repeated;    /**< the previous accepted frame repeated the one before it */
     int velocity_matched;       /**< this frame's velocity noise was matched on its two views */
+    /** The two-view frames' moment estimate of each velocity variance (linear, angular), as sums
+     * that forget over VL_TWO_VIEW_MOMENT_MEMORY frames: the estimate is num / den (vl_noise_two_view.c). */
+    double velocity_moment_num[2];    /**< sum of w a (seen - c), w = 1 / (2 tr M^2), a = 3 sum tau^2 */
+    double velocity_moment_den[2];    /**< sum of w a^2 */
+    double velocity_moment_frames[2]; /**< frames the sums hold (forgetting included) */
 
     /** The pose after the previous accepted frame: the step to a repeated image (repeat_anchor_noise). */
     double frame_R[9]; /**< world-from-IMU rotation, row-major */
