@@ -495,6 +495,14 @@ void test_sparse_frames_match_the_velocity_noise_on_two_views(void)
     }
 }
 
+/* The 100-frame drive of seed 3 at 0.3 px with at most max_observations a frame: a noise prior's
+ * first hundred frames on a sparse drive. */
+static void sparse_hundred_frames(uint32_t max_observations, vl_sim_config_t *sc, vl_config_t *cfg)
+{
+    scenario(3, 100, 0.3, sc, cfg);
+    sc->max_observations = max_observations;
+}
+
 /*
  * From a velocity prior 10x too small a sparse frame's two-view step is slow (the
  * noise's share of the spread it expects is small, and so is its weight): the
@@ -508,8 +516,7 @@ void test_a_sparse_velocity_prior_far_too_small_climbs(void)
     vl_sim_config_t sc;
     vl_config_t cfg;
     vl_pose_t pose;
-    scenario(3, 100, 0.3, &sc, &cfg);
-    sc.max_observations = 5;
+    sparse_hundred_frames(5, &sc, &cfg);
     cfg.linear_velocity_noise = 0.1 * sc.linear_noise;
     adapted_noise(&sc, &cfg, &pose);
     printf("sparse, linear prior %.3f m/s: adapted %.3f m/s after 100 frames (true %.3f)\n", cfg.linear_velocity_noise,
@@ -557,8 +564,7 @@ void test_a_sparse_pixel_prior_far_over_the_rows_comes_down(void)
     vl_sim_config_t sc;
     vl_config_t cfg;
     vl_pose_t pose;
-    scenario(3, 100, 0.3, &sc, &cfg);
-    sc.max_observations = 6;
+    sparse_hundred_frames(6, &sc, &cfg);
     cfg.pixel_noise = 10.0;
     adapted_noise(&sc, &cfg, &pose);
     printf("sparse, pixel prior 10 px: adapted %.3f px after 100 frames (true %.3f)\n", pose.pixel_noise,
