@@ -654,8 +654,17 @@ void test_la_update_equals_dense_kalman_formula(void)
         }
     }
 
+    double nis_ref = 0.0; /* r^T S^-1 r, Sref holding S^-1 now */
+    for (int a = 0; a < m; ++a) {
+        for (int b = 0; b < m; ++b) {
+            nis_ref += obs[a / 3].residual[a % 3] * Sref[a * m + b] * obs[b / 3].residual[b % 3];
+        }
+    }
+
     vl_la_workspace_t ws = {PHt, S, dx, NULL, NULL};
-    TEST_ASSERT_EQUAL_INT(0, vl_la_update(P, n, n, obs, k, &ws));
+    double nis = -1.0;
+    TEST_ASSERT_EQUAL_INT(0, vl_la_update(P, n, n, obs, k, &ws, &nis));
+    TEST_ASSERT_DOUBLE_WITHIN(1e-9 * nis_ref, nis_ref, nis);
     for (int a = 0; a < n; ++a) {
         TEST_ASSERT_DOUBLE_WITHIN(1e-9, dxref[a], dx[a]);
         for (int b = 0; b < n; ++b) {
@@ -677,7 +686,7 @@ void test_la_update_refuses_indefinite_innovation_covariance(void)
     obs.noise_var[0] = obs.noise_var[1] = obs.noise_var[2] = -1e6;
     obs.landmark_col = VL_CORE_DIM;
     vl_la_workspace_t ws = {PHt, S, dx, NULL, NULL};
-    TEST_ASSERT_EQUAL_INT(-1, vl_la_update(P, n, n, &obs, 1, &ws));
+    TEST_ASSERT_EQUAL_INT(-1, vl_la_update(P, n, n, &obs, 1, &ws, NULL));
     TEST_ASSERT_EQUAL_MEMORY(P0, P, sizeof(P));
 }
 

@@ -678,6 +678,56 @@ void test_realistic_sparsest_clean_drive_does_no_harm(void)
     TEST_ASSERT_TRUE(slam_sum < 0.5 * dr_sum);
 }
 
+/*
+ * The frames' normalized innovation squared per row (vl_pose_t::innovation_ratio, weighted
+ * by each frame's rows) over a simulated drive with the noise fixed at pixel_factor x the
+ * truth (no adaptation, no outlier tests: nothing but the model), from frame 10 on.
+ */
+static double innovation_ratio_with_pixel_noise(double pixel_factor)
+{
+    vl_sim_config_t sc;
+    vl_config_t cfg;
+    scenario(7, 200, 0.3, &sc, &cfg);
+    cfg.adaptive_noise = 0;
+    cfg.gate_chi2 = 0.0;
+    cfg.pixel_noise = sc.pixel_noise * pixel_factor;
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&sim, &sc));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    double nis = 0.0, rows = 0.0;
+    vl_imu_sample_t imu;
+    double R_true[9], p_true[3];
+    for (uint32_t k = 0; vl_sim_step(&sim, &imu, &frame, R_true, p_true) == 0; ++k) {
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &imu));
+        const uint64_t used_before = vl_get_counters(&est)->observations_used;
+        TEST_ASSERT_TRUE(vl_update(&est, &frame) >= 0);
+        vl_pose_t pose;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+        /* the ratio is over this frame's rows: 3 per observation the update used */
+        TEST_ASSERT_EQUAL_UINT64(3u * (vl_get_counters(&est)->observations_used - used_before), pose.innovation_rows);
+        if (k >= 10) {
+            nis += pose.innovation_ratio * pose.innovation_rows;
+            rows += pose.innovation_rows;
+        }
+    }
+    TEST_ASSERT_TRUE(rows > 0.0);
+    return nis / rows;
+}
+
+void test_innovation_ratio_tells_whether_the_noise_fits(void)
+{
+    SKIP_UNDER_SANITIZERS();
+    const double fits = innovation_ratio_with_pixel_noise(1.0);
+    const double too_small = innovation_ratio_with_pixel_noise(0.5);
+    const double too_large = innovation_ratio_with_pixel_noise(2.0);
+    char msg[160];
+    snprintf(msg, sizeof(msg), "innovation ratio %.3f at the true pixel noise, %.3f at half, %.3f at twice", fits,
+             too_small, too_large);
+    printf("%s\n", msg);
+    TEST_ASSERT_TRUE_MESSAGE(fits > 0.8 && fits < 1.25, msg);
+    TEST_ASSERT_TRUE_MESSAGE(too_small > 2.0, msg);
+    TEST_ASSERT_TRUE_MESSAGE(too_large < 0.5, msg);
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -699,5 +749,6 @@ int main(void)
     RUN_TEST(test_realistic_sparse_drives_with_noisy_velocities_do_no_harm);
     RUN_TEST(test_realistic_sparsest_clean_drive_does_no_harm);
     RUN_TEST(test_frames_carry_the_pose_through_an_imu_silence);
+    RUN_TEST(test_innovation_ratio_tells_whether_the_noise_fits);
     return UNITY_END();
 }

@@ -156,8 +156,8 @@ void test_update_with_the_worker_equals_the_serial_update_bit_for_bit(void)
         memcpy(P_parallel, P0, bytes);
         const vl_la_workspace_t serial = {PHt, S, dx_serial, NULL, NULL};
         const vl_la_workspace_t parallel = {PHt, S, dx_parallel, vl_worker_parallel_for, &worker};
-        TEST_ASSERT_EQUAL_INT(0, vl_la_update(P_serial, LD, n, obs, k, &serial));
-        TEST_ASSERT_EQUAL_INT(0, vl_la_update(P_parallel, LD, n, obs, k, &parallel));
+        TEST_ASSERT_EQUAL_INT(0, vl_la_update(P_serial, LD, n, obs, k, &serial, NULL));
+        TEST_ASSERT_EQUAL_INT(0, vl_la_update(P_parallel, LD, n, obs, k, &parallel, NULL));
         TEST_ASSERT_EQUAL_INT_MESSAGE(0, memcmp(P_serial, P_parallel, bytes), "covariance");
         TEST_ASSERT_EQUAL_INT_MESSAGE(0, memcmp(dx_serial, dx_parallel, sizeof(double) * (size_t)n), "correction");
         TEST_ASSERT_TRUE(memcmp(P_serial, P0, bytes) != 0); /* the update did something */

@@ -413,6 +413,8 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         }
         return VL_ERR_NOT_READY;
     }
+    e->innovation_nis = 0.0; /* until this frame's updates add theirs */
+    e->innovation_rows = 0;
     const vl_status_t time_st = vl_guard_check_time(e, VL_INPUT_FRAME, frame->utime);
     if (time_st != VL_OK) {
         /* A frame adds to a candidate timeline; the restart waits for an IMU sample to set the clock. */
@@ -579,6 +581,8 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
     out->linear_velocity_noise = sqrt(e->linear_velocity_var);
     out->angular_velocity_noise = sqrt(e->angular_velocity_var);
     out->pixel_noise = sqrt(e->pixel_var);
+    out->innovation_ratio = e->innovation_rows > 0 ? e->innovation_nis / (double)e->innovation_rows : 0.0;
+    out->innovation_rows = e->innovation_rows;
     if (!vl_all_finite(out->rotation, 9) || !vl_all_finite(out->position, 3) || !vl_all_finite(out->covariance, 36) ||
         !vl_all_finite(out->linear_velocity, 3) || !vl_all_finite(out->angular_velocity, 3)) {
         return VL_ERR_NON_FINITE;

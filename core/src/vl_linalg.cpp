@@ -374,7 +374,8 @@ extern "C" int vl_la_single_correction(const double *Pbuf, int ld, int n, const 
     return 0;
 }
 
-extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws)
+extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws,
+                            double *nis)
 {
     no_heap_scope guard;
     const Eigen::Index m = 3 * static_cast<Eigen::Index>(k);
@@ -425,6 +426,9 @@ extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs,
         e.segment<3>(3 * i) = Eigen::Map<const Eigen::Vector3d>(obs[i].residual);
     }
     S.triangularView<Eigen::Lower>().solveInPlace(e);
+    if (nis != nullptr) {
+        *nis = e.squaredNorm();
+    }
     update_blocks blocks = {&P, &S, &PHt};
     run_blocks(shared, ws, whiten_task, &blocks, block_count(n, kProductRows));
     dx.noalias() = PHt * e;

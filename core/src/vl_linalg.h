@@ -77,10 +77,14 @@ void vl_la_settled_landmark(const double *P, int ld, int col, const vl_deferred_
  * of columns) go through ws->parallel_for when set and the update is costly
  * (16 Mflop in them): the blocks are fixed by the dimensions alone and written
  * by disjoint tasks, so P and dx are bit-identical however many threads run them.
+ * @param nis optional (NULL: not wanted): on success the normalized innovation
+ *        squared r^T S^-1 r, the whitened innovation's squared norm (the
+ *        factorization's by-product; chi-square with m degrees of freedom when the
+ *        noise model fits).
  * @return 0 on success with ws->dx holding the correction; -1 when S is not
  *         positive definite (P is then unchanged).
  */
-int vl_la_update(double *P, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws);
+int vl_la_update(double *P, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws, double *nis);
 
 /**
  * Appends a landmark block at state index n (P grows to n + 3):

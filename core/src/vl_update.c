@@ -141,7 +141,8 @@ vl_status_t vl_update_apply(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t
     }
     vl_la_workspace_t ws = {e->work_PHt, e->work_S, e->work_dx, e->cfg.parallel_for, e->cfg.parallel_ctx};
     const uint32_t n = vl_state_dim(e);
-    if (vl_la_update(vl_P(e), VL_LD, (int)n, rows, (int)m, &ws) != 0 || !vl_all_finite(e->work_dx, (int)n)) {
+    double nis = 0.0;
+    if (vl_la_update(vl_P(e), VL_LD, (int)n, rows, (int)m, &ws, &nis) != 0 || !vl_all_finite(e->work_dx, (int)n)) {
         e->counters.numerical_failures++;
         return VL_ERR_NOT_POSITIVE_DEFINITE;
     }
@@ -174,5 +175,7 @@ vl_status_t vl_update_apply(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t
         s->last_update_frame = e->frame_index;
     }
     e->counters.observations_used += m;
+    e->innovation_nis += nis;
+    e->innovation_rows += VL_OBS_DIM * m;
     return VL_OK;
 }

@@ -89,7 +89,7 @@ int main(int argc, char **argv)
     for (int r = 0; r < reps; ++r) {
         memcpy(P, P0, sizeof(double) * (size_t)LD * (size_t)n);
         const int64_t t0 = vl_clock_monotonic_us();
-        if (vl_la_update(P, LD, n, obs, k, &ws) != 0) {
+        if (vl_la_update(P, LD, n, obs, k, &ws, NULL) != 0) {
             fprintf(stderr, "vl_bench_update: S not positive definite\n");
             return 1;
         }

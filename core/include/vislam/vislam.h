@@ -220,6 +220,12 @@ typedef struct {
     double linear_velocity_noise;  /**< m/s, per-sample noise std in use (adapted with adaptive_noise) */
     double angular_velocity_noise; /**< rad/s, likewise */
     double pixel_noise;            /**< px, likewise */
+    /** Normalized innovation squared per row of the last frame's update(s): r^T S^-1 r over their
+     * rows, on the observations the update used (after the gate and RANSAC). About 1 when the
+     * noise model fits them, over 1 when the filter is overconfident (noise set too small), under
+     * 1 when it is over-conservative (noise set too large); 0 when that frame made no update. */
+    double innovation_ratio;
+    uint32_t innovation_rows; /**< rows of those updates (3 per observation); 0 when none */
 } vl_pose_t;
 
 /**
@@ -405,6 +411,8 @@ typedef struct {
     double angular_velocity_var; /**< (rad/s)^2 per sample */
     double pixel_var;            /**< px^2 */
     double pixel_log_ratio;      /**< fast average of log(sample / pixel_var) over dense frames (vl_noise.c) */
+    double innovation_nis;       /**< r^T S^-1 r summed over the last frame's updates (vl_update.c) */
+    uint32_t innovation_rows;    /**< rows of those updates */
     uint32_t reassociated_run;   /**< consecutive frames distrusted as re-associations */
     /** (rad/s)^2: the angular variance the angular offsets' covariance was last reopened for (vl_noise.c) */
     double angular_velocity_var_reopened;
@@ -528,6 +536,8 @@ vl_status_t vl_config_check(const vl_config_t *cfg);
     X(vl_pose_t, linear_velocity_noise)  \
     X(vl_pose_t, angular_velocity_noise) \
     X(vl_pose_t, pixel_noise)            \
+    X(vl_pose_t, innovation_ratio)       \
+    X(vl_pose_t, innovation_rows)        \
     X(vl_counter_entry_t, name)          \
     X(vl_counter_entry_t, value)         \
     X(vl_counter_entry_t, meaning)       \
