@@ -179,6 +179,10 @@ static void after_step(vl_session_t *s, vl_session_step_t step, vl_status_t st, 
         s->n.poses_withheld++;
         return;
     }
+    if (step == VL_SESSION_STEP_UPDATE) {
+        s->innovation_nis += s->pose.innovation_ratio * (double)s->pose.innovation_rows;
+        s->innovation_rows += s->pose.innovation_rows;
+    }
     const uint64_t sequence = s->n.poses_out++;
     if (s->opt.callbacks.on_pose != NULL) {
         s->opt.callbacks.on_pose(s->opt.callbacks.user, step, utime, sequence, &s->pose);
@@ -329,6 +333,7 @@ void vl_session_fill_status(const vl_session_t *s, vislam_status_t *out)
     out->linear_velocity_noise = have_pose ? pose.linear_velocity_noise : s->cfg.linear_velocity_noise;
     out->angular_velocity_noise = have_pose ? pose.angular_velocity_noise : s->cfg.angular_velocity_noise;
     out->pixel_noise = have_pose ? pose.pixel_noise : s->cfg.pixel_noise;
+    out->innovation_ratio = vl_session_innovation_ratio(s, 1);
     out->frames_repeated = (int64_t)c->frames_repeated;
     out->time_jumps = (int64_t)c->time_jumps;
     out->timeline_changes = (int64_t)c->timeline_changes;
@@ -343,6 +348,15 @@ void vl_session_mark(vl_session_t *s)
 {
     s->n_at_mark = s->n;
     s->core_at_mark = *vl_session_core_counters(s);
+    s->innovation_nis_at_mark = s->innovation_nis;
+    s->innovation_rows_at_mark = s->innovation_rows;
+}
+
+double vl_session_innovation_ratio(const vl_session_t *s, int since_mark)
+{
+    const double nis = s->innovation_nis - (since_mark ? s->innovation_nis_at_mark : 0.0);
+    const uint64_t rows = s->innovation_rows - (since_mark ? s->innovation_rows_at_mark : 0u);
+    return rows > 0 ? nis / (double)rows : 0.0;
 }
 
 /* ---- queries ---- */

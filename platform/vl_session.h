@@ -140,9 +140,14 @@ typedef struct {
     /* logger */
     uint64_t log_seen[4];
     uint64_t log_suppressed;
-    /* "since the last mark" for the health bits */
+    /* the frames' normalized innovation squared (vl_pose_t::innovation_ratio x rows) and rows, since start */
+    double innovation_nis;
+    uint64_t innovation_rows;
+    /* "since the last mark" for the health bits and the status's innovation ratio */
     vl_session_counters_t n_at_mark;
     vl_counters_t core_at_mark;
+    double innovation_nis_at_mark;
+    uint64_t innovation_rows_at_mark;
 } vl_session_t;
 
 /**
@@ -183,6 +188,13 @@ void vl_session_fill_status(const vl_session_t *s, vislam_status_t *out);
 
 /** Starts a new "since the last mark" interval for vl_session_health (after publishing a status). */
 void vl_session_mark(vl_session_t *s);
+
+/**
+ * The frames' normalized innovation squared per row (vl_pose_t::innovation_ratio, weighted by
+ * each frame's rows) since the session started (@p since_mark = 0) or since the last
+ * vl_session_mark (1); 0 when no frame updated the state in that interval.
+ */
+double vl_session_innovation_ratio(const vl_session_t *s, int since_mark);
 
 /** The run counters. */
 const vl_session_counters_t *vl_session_counters(const vl_session_t *s);

@@ -101,6 +101,7 @@ static void print_status(const char *which, const vislam_status_t *s)
     FDBL(linear_velocity_noise);
     FDBL(angular_velocity_noise);
     FDBL(pixel_noise);
+    FDBL(innovation_ratio);
 #undef FDBL
 }
 

@@ -82,8 +82,9 @@ static void usage(FILE *f)
             "                       (body-frame right perturbation, m^2 and rad^2, see vislam.h)\n"
             "  --frame-stats FILE   one line per trajectory line: time, every core counter (running\n"
             "                       totals, named in the header line) and the per-sample noises in\n"
-            "                       use (linear m/s, angular rad/s, pixel px) and the estimated\n"
-            "                       input offsets (linear m/s, angular rad/s; x y z each)\n"
+            "                       use (linear m/s, angular rad/s, pixel px), the estimated\n"
+            "                       input offsets (linear m/s, angular rad/s; x y z each) and the\n"
+            "                       update's normalized innovation squared per row and its rows\n"
             "  --config FILE        INI configuration on top of the defaults (see tools/vislam.ini)\n"
             "  --preset NAME        default|seed: start from this preset (conflicts with a different\n"
             "                       [estimator] preset in the config file)\n"
@@ -225,27 +226,29 @@ static void write_frame_stats_header(FILE *f)
     VL_COUNTERS(VL_FRAME_STATS_NAME_)
 #undef VL_FRAME_STATS_NAME_
     fputs(" linear_velocity_noise angular_velocity_noise pixel_noise linear_offset_x linear_offset_y linear_offset_z"
-          " angular_offset_x angular_offset_y angular_offset_z\n",
+          " angular_offset_x angular_offset_y angular_offset_z innovation_ratio innovation_rows\n",
           f);
 }
 
 /* One frame-stats line: the time as the TUM writer prints it, the running core counters, the
-   noises in use and the estimated input offsets after the frame's update. */
+   noises in use and the estimated input offsets after the frame's update, and the update's
+   normalized innovation squared per row with its rows. */
 static void write_frame_stats_line(FILE *f, int64_t utime, const vl_counters_t *c, const vl_pose_t *pose)
 {
     write_time(f, utime);
 #define VL_FRAME_STATS_VALUE_(type, name, meaning) fprintf(f, " %llu", (unsigned long long)c->name);
     VL_COUNTERS(VL_FRAME_STATS_VALUE_)
 #undef VL_FRAME_STATS_VALUE_
-    const double tail[9] = {pose->linear_velocity_noise, pose->angular_velocity_noise, pose->pixel_noise,
-                            pose->linear_offset[0],      pose->linear_offset[1],       pose->linear_offset[2],
-                            pose->angular_offset[0],     pose->angular_offset[1],      pose->angular_offset[2]};
-    for (int i = 0; i < 9; ++i) {
+    const double tail[10] = {pose->linear_velocity_noise, pose->angular_velocity_noise, pose->pixel_noise,
+                             pose->linear_offset[0],      pose->linear_offset[1],       pose->linear_offset[2],
+                             pose->angular_offset[0],     pose->angular_offset[1],      pose->angular_offset[2],
+                             pose->innovation_ratio};
+    for (int i = 0; i < 10; ++i) {
         char v[VL_CLI_DOUBLE_MAX];
         vl_cli_format_double(v, sizeof(v), tail[i]);
         fprintf(f, " %s", v);
     }
-    fputc('\n', f);
+    fprintf(f, " %u\n", (unsigned)pose->innovation_rows);
 }
 
 /* Session sink: one TUM line (and covariance and frame-stats lines) per frame the core used. */
@@ -356,6 +359,7 @@ static int write_stats_json(const char *path, const options_t *o, const vl_sessi
     fprintf(f, "  \"calibration_source\": \"%s\",\n", vl_session_calibration_source(ss));
     fprintf(f, "  \"landmarks_mapped\": %zu,\n", k->map.count);
     fprintf(f, "  \"health\": %d,\n", (int)vl_session_health(ss));
+    fprintf(f, "  \"innovation_ratio\": %.9g,\n", vl_session_innovation_ratio(ss, 0));
     fprintf(f, "  \"run\": {\n");
     vl_json_counts(f, "    ", list, run_counter_list(ss, rs, truncated, k->trajectory_lines, list));
     fprintf(f, "  },\n  \"core_counters\": {\n");
@@ -600,6 +604,10 @@ int main(int argc, char **argv)
         if (e != NULL && vl_get_pose(e, &last) == VL_OK) {
             fprintf(stderr, "  noise in use: linear_velocity %.3g m/s, angular_velocity %.3g rad/s, pixel %.3g px\n",
                     last.linear_velocity_noise, last.angular_velocity_noise, last.pixel_noise);
+            fprintf(stderr,
+                    "  innovation ratio over the run: %.3g (normalized innovation squared per row; 1 when the noise "
+                    "model fits)\n",
+                    vl_session_innovation_ratio(&session, 0));
         }
         for (int which = 0; which < 2; ++which) {
             for (int s = (int)VL_STATUS_MIN; s <= (int)VL_STATUS_MAX; ++s) {
