@@ -315,6 +315,85 @@ void test_a_stale_read_stops_at_the_assert(void)
     TEST_ASSERT_EQUAL_UINT32(LANDMARKS - 1, vl_window_size(&est));
 }
 
+/*
+ * A velocity sensor away from the body origin (velocity_sensor_*): spinning in place at
+ * 1 rad/s about z, a sensor at p = (1, 0.5, 0) m sees w x p; with p configured the body
+ * origin stays put and the pose reports its velocity as zero; without it, it circles.
+ */
+void test_a_velocity_sensor_lever_arm_is_taken_out(void)
+{
+    const double p[3] = {1.0, 0.5, 0.0}, wz = 1.0;
+    const double seen[3] = {-wz * p[1], wz * p[0], 0.0}; /* w x p */
+    double end[2][3];
+    for (int lever = 0; lever < 2; ++lever) {
+        vl_config_t cfg;
+        vl_test_kitti_config(&cfg);
+        cfg.mode = VL_MODE_IMU_ONLY;
+        cfg.velocity_sensor_x = lever ? p[0] : 0.0;
+        cfg.velocity_sensor_y = lever ? p[1] : 0.0;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+        for (int k = 0; k <= 20; ++k) {
+            vl_imu_sample_t s = vl_test_imu_at(VL_TEST_T0_US + k * VL_TEST_STEP_US, 0.0, wz);
+            memcpy(s.linear_velocity, seen, sizeof(seen));
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        }
+        vl_pose_t pose;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+        memcpy(end[lever], pose.position, sizeof(end[lever]));
+        if (lever) {
+            for (int i = 0; i < 3; ++i) {
+                TEST_ASSERT_DOUBLE_WITHIN(1e-12, 0.0, pose.linear_velocity[i]);
+            }
+        }
+    }
+    TEST_ASSERT_TRUE(vl_norm3(end[1]) < 1e-9); /* 2 s of spinning: the origin has not moved */
+    TEST_ASSERT_TRUE(vl_norm3(end[0]) > 0.5);  /* taken as the origin's velocity, it circles */
+}
+
+/*
+ * The lever arm's noise: one step from rest at the identity pose (G = -tau I), with the
+ * sensor at p the pose covariance is tau^2 T Q T^T, T = [I hat(p); 0 I], Q = diag(sv^2 I,
+ * sw^2 I): the angular noise reaches the position through the lever arm.
+ */
+void test_a_velocity_sensor_lever_arm_carries_the_angular_noise(void)
+{
+    const double p[3] = {1.5, -0.7, 0.4}, sv = 0.1, sw = 0.05, tau = 0.1;
+    vl_config_t cfg;
+    vl_test_kitti_config(&cfg);
+    cfg.mode = VL_MODE_IMU_ONLY;
+    cfg.adaptive_noise = 0;
+    cfg.estimate_input_offsets = 0;
+    cfg.interpolate_velocities = 0;
+    cfg.linear_velocity_noise = sv;
+    cfg.angular_velocity_noise = sw;
+    cfg.velocity_sensor_x = p[0];
+    cfg.velocity_sensor_y = p[1];
+    cfg.velocity_sensor_z = p[2];
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    vl_imu_sample_t s = vl_test_imu_at(VL_TEST_T0_US, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    s.utime += (int64_t)(tau * 1e6);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    vl_pose_t pose;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+    double S[9], expected[36];
+    vl_skew(p, S);
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            double ss = 0.0; /* (hat(p) hat(p)^T)_ij */
+            for (int k = 0; k < 3; ++k) {
+                ss += S[3 * i + k] * S[3 * j + k];
+            }
+            expected[6 * i + j] = tau * tau * ((i == j ? sv * sv : 0.0) + sw * sw * ss);
+            expected[6 * i + 3 + j] = expected[6 * (3 + j) + i] = tau * tau * sw * sw * S[3 * i + j];
+            expected[6 * (3 + i) + 3 + j] = i == j ? tau * tau * sw * sw : 0.0;
+        }
+    }
+    for (int i = 0; i < 36; ++i) {
+        TEST_ASSERT_DOUBLE_WITHIN(1e-15, expected[i], pose.covariance[i]);
+    }
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -323,5 +402,7 @@ int main(void)
     RUN_TEST(test_mapping_with_and_without_offsets);
     RUN_TEST(test_samples_defer_and_a_frame_settles);
     RUN_TEST(test_a_stale_read_stops_at_the_assert);
+    RUN_TEST(test_a_velocity_sensor_lever_arm_is_taken_out);
+    RUN_TEST(test_a_velocity_sensor_lever_arm_carries_the_angular_noise);
     return UNITY_END();
 }

@@ -578,6 +578,16 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
         out->linear_offset[i] = e->offset_linear[i];
         out->angular_offset[i] = e->offset_angular[i];
     }
+    double sensor_buf[3];
+    const double *sensor = vl_predict_velocity_sensor(e, sensor_buf);
+    if (sensor != NULL) { /* the body origin's velocity: the sensor's less w x p */
+        double S[9], turn[3];
+        vl_skew(sensor, S);
+        vl_matmul(S, out->angular_velocity, turn, 3, 3, 1);
+        for (int i = 0; i < 3; ++i) {
+            out->linear_velocity[i] += turn[i];
+        }
+    }
     out->linear_velocity_noise = sqrt(e->linear_velocity_var);
     out->angular_velocity_noise = sqrt(e->angular_velocity_var);
     out->pixel_noise = sqrt(e->pixel_var);

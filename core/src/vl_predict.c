@@ -24,7 +24,7 @@
  * landmarks, which stay put).
  */
 static void advance(vl_estimator_t *e, int64_t utime, double tau, const double xi[6], const double noise_var[6],
-                    const double offset_var[6])
+                    const double offset_var[6], const double sensor[3])
 {
     double dR[9], dp[3], Rn[9], t[3];
     vl_se3_exp(xi, dR, dp);
@@ -43,6 +43,23 @@ static void advance(vl_estimator_t *e, int64_t utime, double tau, const double x
     vl_matmul(Ad, Jr, Gp, 6, 6, 6);
     for (int i = 0; i < 36; ++i) {
         Gp[i] *= -tau;
+    }
+    if (sensor != NULL) {
+        /* The body twist is T (u - n - db) with T = [I hat(p); 0 I]: G becomes G T, so the
+         * angular noise and offsets reach the linear velocity through the lever arm. */
+        double S[9];
+        vl_skew(sensor, S);
+        for (int i = 0; i < 6; ++i) {
+            double add[3] = {0.0, 0.0, 0.0};
+            for (int j = 0; j < 3; ++j) {
+                for (int k = 0; k < 3; ++k) {
+                    add[j] += Gp[6 * i + k] * S[3 * k + j];
+                }
+            }
+            for (int j = 0; j < 3; ++j) {
+                Gp[6 * i + 3 + j] += add[j];
+            }
+        }
     }
     vl_work_predict(e, offset_var != NULL);
     vl_predict_defer(e, Gp, noise_var, offset_var);
@@ -68,6 +85,16 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
         xi[i] = tau * (lin[i] - e->offset_linear[i]);
         xi[3 + i] = tau * (ang[i] - e->offset_angular[i]);
     }
+    double sensor_buf[3];
+    const double *sensor = vl_predict_velocity_sensor(e, sensor_buf);
+    if (sensor != NULL) {
+        double S[9], turn[3];
+        vl_skew(sensor, S);
+        vl_matmul(S, &xi[3], turn, 3, 3, 1); /* p x (tau w): v_body = v - w x p */
+        for (int i = 0; i < 3; ++i) {
+            xi[i] += turn[i];
+        }
+    }
     const double sv2 = e->linear_velocity_var * noise_share;
     const double sw2 = e->angular_velocity_var * noise_share;
     const double noise_var[6] = {sv2, sv2, sv2, sw2, sw2, sw2};
@@ -76,7 +103,15 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
     const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
     const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
     const double offset_var[6] = {qv, qv, qv, qw, qw, qw};
-    advance(e, utime, tau, xi, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL);
+    advance(e, utime, tau, xi, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL, sensor);
+}
+
+const double *vl_predict_velocity_sensor(const vl_estimator_t *e, double p[3])
+{
+    p[0] = e->cfg.velocity_sensor_x;
+    p[1] = e->cfg.velocity_sensor_y;
+    p[2] = e->cfg.velocity_sensor_z;
+    return (p[0] != 0.0 || p[1] != 0.0 || p[2] != 0.0) ? p : NULL;
 }
 
 /*
@@ -214,7 +249,7 @@ void vl_predict_silence_to(vl_estimator_t *e, int64_t utime)
         w += vl_norm3(e->held_angular);
     }
     const double noise_var[6] = {v * v, v * v, v * v, w * w, w * w, w * w};
-    advance(e, utime, tau, xi, noise_var, NULL);
+    advance(e, utime, tau, xi, noise_var, NULL, NULL); /* the frames' own body velocity: no lever arm */
     e->unknown_motion = 1;
     e->unknown_motion_var[0] = v * v;
     e->unknown_motion_var[1] = w * w;

@@ -24,6 +24,12 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime);
 void vl_predict_to_sample(vl_estimator_t *e, const vl_imu_sample_t *imu);
 
 /**
+ * The configured position of the velocity sensor in the body frame (velocity_sensor_x, _y, _z)
+ * in @p p, m; returns @p p, or NULL when the sensor is at the body origin (no lever arm).
+ */
+const double *vl_predict_velocity_sensor(const vl_estimator_t *e, double p[3]);
+
+/**
  * Propagates the state to utime across an IMU silence: with the held
  * velocities up to max_imu_silence after the last sample (vl_predict_to), and
  * from there, in slam mode, at the velocity between the last two frames

@@ -175,6 +175,21 @@ def test_reference_agrees_on_moving_tracks(build_dir, tmp_path, monkeypatch):
     assert compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)]) == 1
 
 
+def test_reference_agrees_with_a_velocity_sensor_lever_arm(build_dir, tmp_path):
+    """The velocity samples taken as those of a point away from the body origin (velocity_sensor_*):
+    the reference takes the same turn rate times lever arm out of them and carries the angular noise
+    through it (it agrees), and that matters (without the lever arm in the reference alone the poses
+    move)."""
+    ini = tmp_path / "lever.ini"
+    ini.write_text("[estimator]\nvelocity_sensor_x = -1.5\nvelocity_sensor_y = 1.0\nvelocity_sensor_z = -0.8\n")
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "30")
+    assert_agrees(rc, fig, 30)
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "30", "--set", "velocity_sensor_x=0",
+                      "--set", "velocity_sensor_y=0", "--set", "velocity_sensor_z=0")
+    assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
+    assert rc == 1
+
+
 def agrees_and_matters(build_dir, tmp_path, monkeypatch, config, steps, rule_ratio, log=SAMPLE):
     """The two agree on the log's first steps (the sample's by default) under the INI text config, and
     no longer do once the reference alone sets its constant rule_ratio to infinity (the rule never

@@ -409,19 +409,27 @@ class Filter:
         error db, both entering as u -> u - n - db: d xi = G (n + db) with
         G = -tau Ad(T_new) J_r(tau (u - b)) on the pose, and hat(l_i) times G's rotation rows on
         landmark i. P <- Phi P Phi^T + G Q G^T + Q_b, Phi = I + G E^T, with Q the configured (or
-        adapted) variance of one sample times noise_share."""
+        adapted) variance of one sample times noise_share. A velocity sensor at p in the body frame
+        (velocity_sensor_*) sees v + w x p: the body twist is T (u - b) with T = [I hat(p); 0 I],
+        and G becomes G T."""
         tau = (utime - self.state_utime) * 1e-6
         if tau <= 0.0:
             return
         linear = self.held_v if linear is None else linear
         angular = self.held_w if angular is None else angular
         xi = tau * np.concatenate([linear - self.b_v, angular - self.b_w])
+        sensor = np.array([self.cfg[f"velocity_sensor_{a}"] for a in "xyz"], float)
+        lever = bool(np.any(sensor != 0.0))
+        if lever:
+            xi[:3] += hat3(sensor) @ xi[3:]
         dR, dp = se3_exp(xi)
         self.p = self.p + self.R @ dp
         self.R = so3_normalize(self.R @ dR)
         self.state_utime = utime
 
         Gp = -tau * se3_adjoint(self.R, self.p) @ se3_right_jacobian(xi)
+        if lever:
+            Gp[:, 3:6] += Gp[:, 0:3] @ hat3(sensor)
         G = np.zeros((self.n, 6))
         G[:6] = Gp
         for i, l in enumerate(self.L):

@@ -209,14 +209,14 @@ typedef struct {
 
 /** Pose estimate. */
 typedef struct {
-    int64_t utime;                 /**< us, time of the state */
-    double rotation[9];            /**< world-from-IMU rotation, row-major */
-    double position[3];            /**< IMU origin in the world, m */
-    double covariance[36];         /**< 6x6 row-major over [rho (m), phi (rad)] */
-    double linear_velocity[3];     /**< last offset-corrected body velocity, m/s */
-    double angular_velocity[3];    /**< last offset-corrected body angular velocity, rad/s */
-    double linear_offset[3];       /**< estimated linear velocity offset, m/s */
-    double angular_offset[3];      /**< estimated angular velocity offset, rad/s */
+    int64_t utime;              /**< us, time of the state */
+    double rotation[9];         /**< world-from-IMU rotation, row-major */
+    double position[3];         /**< IMU origin in the world, m */
+    double covariance[36];      /**< 6x6 row-major over [rho (m), phi (rad)] */
+    double linear_velocity[3];  /**< last offset-corrected body velocity (at the body origin: velocity_sensor_*), m/s */
+    double angular_velocity[3]; /**< last offset-corrected body angular velocity, rad/s */
+    double linear_offset[3];    /**< estimated linear velocity offset, m/s */
+    double angular_offset[3];   /**< estimated angular velocity offset, rad/s */
     double linear_velocity_noise;  /**< m/s, per-sample noise std in use (adapted with adaptive_noise) */
     double angular_velocity_noise; /**< rad/s, likewise */
     double pixel_noise;            /**< px, likewise */

@@ -74,6 +74,16 @@ typedef enum {
       "samples the velocity is taken as linear (trapezoidal integration; IMUs, wheel odometry, " \
       "INS). false: a sample holds until the next one (velocities that are means over the " \
       "interval that follows them, e.g. differences of consecutive poses).") \
+    X("estimator", "velocity_sensor_x", velocity_sensor_x, DOUBLE, 0.0, -100.0, 100.0, 0, "m", \
+      "Where the linear velocity samples are measured, in the body (IMU) frame of cam_T_imu: " \
+      "x. A sensor away from the body origin (wheel odometry at an axle, an INS or GNSS " \
+      "antenna elsewhere) sees the body's velocity plus the turn rate times its lever arm; " \
+      "the estimator takes that back out (v_body = v - w x p), and the angular noise and " \
+      "offsets reach the linear velocity through the same lever arm.") \
+    X("estimator", "velocity_sensor_y", velocity_sensor_y, DOUBLE, 0.0, -100.0, 100.0, 0, "m", \
+      "The same: y.") \
+    X("estimator", "velocity_sensor_z", velocity_sensor_z, DOUBLE, 0.0, -100.0, 100.0, 0, "m", \
+      "The same: z.") \
     X("estimator", "max_propagation_dt", max_propagation_dt, DOUBLE, 0.5, 0.0, DBL_MAX, 1, "s", \
       "A gap between inputs longer than this is counted (time_gaps) and still propagated.") \
     /* 64 observations (192 rows) keep an update at a full window of 128 under 2 ms at p99.9 \
