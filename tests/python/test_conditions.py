@@ -74,6 +74,26 @@ def test_clean_velocities_reproduce_the_ground_truth(synthetic, tmp_path):
         np.testing.assert_array_equal(d[k], src[k])
 
 
+def test_clean_imu_velocities_are_the_real_imus(synthetic, tmp_path):
+    """clean-imu takes the ground truth through cam_T_imu with its translation t replaced by -R t: a
+    point r = t + R^T t away (IMU axes), so its velocities are the clean ones less w x r, while every
+    other array, cam_T_imu included, stays the dataset's."""
+    path, gt_path, _, _ = synthetic
+    clean, imu = tmp_path / "clean.npz", tmp_path / "imu.npz"
+    assert main([str(path), str(clean), "--velocities", "clean", "--gt", str(gt_path)]) == 0
+    assert main([str(path), str(imu), "--velocities", "clean-imu", "--gt", str(gt_path)]) == 0
+    c, d = load_npz(clean), load_npz(imu)
+    T = np.asarray(d["cam_T_imu"], float)
+    R, t = T[:3, :3], T[:3, 3]
+    r = R.T @ (t - (-R @ t))
+    w = c["rotational_velocity"]
+    np.testing.assert_allclose(d["rotational_velocity"], w, atol=1e-12)
+    np.testing.assert_allclose(c["linear_velocity"] - d["linear_velocity"], np.cross(w.T, r).T, atol=1e-9)
+    assert np.max(np.abs(c["linear_velocity"] - d["linear_velocity"])) > 1e-3  # the drive turns: they differ
+    np.testing.assert_array_equal(d["cam_T_imu"], np.load(path)["cam_T_imu"])
+    assert main([str(path), str(imu), "--velocities", "clean-imu"]) == 1  # needs --gt
+
+
 def test_clean_velocities_need_two_poses_and_enough_steps():
     ts = np.arange(5) * 0.1
     with pytest.raises(ToolError):

@@ -118,14 +118,18 @@ def test_plan_counts_and_shared_logs(tmp_path):
         (data / f).write_text("")
     plan = testbed.build_plan(list(testbed.SUITES), str(tmp_path / "bin"), str(data), str(tmp_path / "logs"))
     count = {s: len([c for c in plan.cells if c.suite == s]) for s in testbed.SUITES}
-    assert count == {"conditions": 30, "tracker": 18, "grid": 31, "sim": 10, "realistic": 36, "starts": 8,
-                     "sweep": 104, "sweep_starts": 104}
+    assert count == {"conditions": 30, "tracker": 18, "clean_imu": 7, "grid": 31, "sim": 10, "realistic": 36,
+                     "starts": 8, "sweep": 104, "sweep_starts": 104}
     names = {c.name for c in plan.cells if c.suite == "conditions"}
     assert "0027_given_x2_K1_s1" in names and "0027_given_x2_K1_s1" in {c.name for c in plan.cells if c.suite == "grid"}
     # 24 + 2 x 4 (with the pseudo-truths' full-density logs) + the tracker's 12 + 2 x 3 (sharing the
-    # full-density logs) + the grid's 18 new ones + 8 starts + 46 simulated; the sweep's 8 drives are
-    # conditions cells
-    assert len(plan.logs) == 24 + 8 + 12 + 6 + 18 + 8 + 46
+    # full-density logs) + clean_imu's 7 + the grid's 18 new ones + 8 starts + 46 simulated; the
+    # sweep's 8 drives are conditions cells
+    assert len(plan.logs) == 24 + 8 + 12 + 6 + 7 + 18 + 8 + 46
+    clean_imu = [c for c in plan.cells if c.suite == "clean_imu"]
+    assert all(c.dr and c.truth_kind == "kitti" for c in clean_imu)
+    argv = plan.logs["0027_clean_imu_N3_s1"].commands[0]
+    assert argv[argv.index("--velocities") + 1] == "clean-imu" and argv[argv.index("--max-tracks") + 1] == "3"
     tracker = [c for c in plan.cells if c.suite == "tracker"]
     assert all(c.dr for c in tracker)
     assert {c.truth for c in tracker if c.truth_kind == "pseudo"} == {"0022_given_K1", "0034_given_K1"}

@@ -34,6 +34,12 @@ Velocities:
           when the dataset has more steps; velocity N-1 is never integrated (it would move the
           pose past the last step) and holds velocity N-2. Dead reckoning of the output
           reproduces the ground-truth IMU poses. --velocity-noise SIGMA_V,SIGMA_W adds noise.
+  clean-imu  the same, of the real IMU: the seed datasets' cam_T_imu has as its translation t
+          the camera's position in the IMU frame, which puts its "IMU" 2.6 m from the real one;
+          these velocities go through cam_T_imu with the translation -R t instead (the real
+          IMU's place), as a recording of clean velocities would be. The output keeps the
+          dataset's cam_T_imu, so the estimator and the evaluation see the seed's frame and the
+          velocities differ from clean by w x r (README, The seed data's cam_T_imu).
 Every noise is white Gaussian, independent per axis and sample, from numpy's default_rng(--seed).
 
 Density:
@@ -71,7 +77,7 @@ def build_parser():
     cli.add_version(p)
     p.add_argument("input", metavar="IN.npz", help="seed dataset")
     p.add_argument("output", metavar="OUT.npz", help="modified dataset to write (overwritten)")
-    p.add_argument("--velocities", choices=("given", "clean"), default="given",
+    p.add_argument("--velocities", choices=("given", "clean", "clean-imu"), default="given",
                    help="the dataset's velocities or clean ones from --gt (default given)")
     p.add_argument("--gt", metavar="KITTI.txt", help="ground truth for --velocities clean")
     p.add_argument("--velocity-noise", type=_pair, default=None, metavar="SIGMA_V,SIGMA_W",
@@ -112,6 +118,15 @@ def clean_velocities(time_stamps, w_T_cam, cam_T_imu):
     twists = np.array([se3_log(r) for r in rel]) / tau[:, None]  # (N-1, 6)
     twists = np.vstack([twists, twists[-1:]])
     return twists[:, :3].T.copy(), twists[:, 3:].T.copy()
+
+
+def real_imu_transform(cam_T_imu):
+    """cam_T_imu with its translation t replaced by -R t: the seed datasets' t is the camera's
+    position in the IMU frame, so this is the transform to the real IMU (README, The seed data's
+    cam_T_imu)."""
+    out = np.array(cam_T_imu, dtype=float, copy=True)
+    out[:3, 3] = -out[:3, :3] @ out[:3, 3]
+    return out
 
 
 def keep_every(features, k):
@@ -167,16 +182,17 @@ def make_condition(data, velocities="given", gt_w_T_cam=None, velocity_noise=Non
                "input_steps": int(n_steps)}
     if velocity_noise is not None and noise_scale is not None:
         raise ToolError("give --velocity-noise or --velocity-noise-scale, not both")
-    if velocities == "clean":
+    if velocities in ("clean", "clean-imu"):
         if gt_w_T_cam is None:
-            raise ToolError("--velocities clean needs --gt (KITTI odometry poses)")
+            raise ToolError(f"--velocities {velocities} needs --gt (KITTI odometry poses)")
         if noise_scale is not None:
             raise ToolError("--velocity-noise-scale scales the given velocities' noise: "
                             "use --velocity-noise SIGMA_V,SIGMA_W with clean velocities")
         n = gt_w_T_cam.shape[0]
         if n > n_steps:
             raise ToolError(f"the ground truth has {n} poses, more than the dataset's {n_steps} steps")
-        lin, ang = clean_velocities(ts, gt_w_T_cam, arrays["cam_T_imu"])
+        cam_T_imu = arrays["cam_T_imu"] if velocities == "clean" else real_imu_transform(arrays["cam_T_imu"])
+        lin, ang = clean_velocities(ts, gt_w_T_cam, cam_T_imu)
         ts = ts.reshape(-1)[:n].reshape(1, n) if ts.ndim == 2 else ts[:n]
         arrays["time_stamps"] = ts
         arrays["features"] = np.asarray(arrays["features"])[:, :, :n]
@@ -215,8 +231,8 @@ def main(argv=None):
         data = load_npz(args.input)
         gt = None
         if args.gt is not None:
-            if args.velocities != "clean":
-                raise ToolError("--gt is only used with --velocities clean")
+            if args.velocities == "given":
+                raise ToolError("--gt is only used with --velocities clean or clean-imu")
             _, gt = read_kitti(args.gt)
         arrays, summary = make_condition(data, args.velocities, gt, args.velocity_noise,
                                          args.velocity_noise_scale, args.keep_every, args.seed, args.max_tracks)
