@@ -578,12 +578,8 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
         out->linear_offset[i] = e->offset_linear[i];
         out->angular_offset[i] = e->offset_angular[i];
     }
-    double sensor_buf[3];
-    const double *sensor = vl_predict_velocity_sensor(e, sensor_buf);
-    if (sensor != NULL) { /* the body origin's velocity: the sensor's less w x p */
-        double S[9], turn[3];
-        vl_skew(sensor, S);
-        vl_matmul(S, out->angular_velocity, turn, 3, 3, 1);
+    double turn[3];
+    if (vl_predict_lever_term(e, out->angular_velocity, turn)) { /* the body origin's velocity */
         for (int i = 0; i < 3; ++i) {
             out->linear_velocity[i] += turn[i];
         }

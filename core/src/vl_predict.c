@@ -65,6 +65,15 @@ static void advance(vl_estimator_t *e, int64_t utime, double tau, const double x
     vl_predict_defer(e, Gp, noise_var, offset_var);
 }
 
+/* The configured velocity sensor position (body frame) in p, or NULL when it is the body origin. */
+static const double *velocity_sensor(const vl_estimator_t *e, double p[3])
+{
+    p[0] = e->cfg.velocity_sensor_x;
+    p[1] = e->cfg.velocity_sensor_y;
+    p[2] = e->cfg.velocity_sensor_z;
+    return (p[0] != 0.0 || p[1] != 0.0 || p[2] != 0.0) ? p : NULL;
+}
+
 /*
  * Moves the state to utime with the velocity u = (lin, ang) over the interval,
  * less the estimated offsets. noise_share scales the input noise: the variance
@@ -85,12 +94,9 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
         xi[i] = tau * (lin[i] - e->offset_linear[i]);
         xi[3 + i] = tau * (ang[i] - e->offset_angular[i]);
     }
-    double sensor_buf[3];
-    const double *sensor = vl_predict_velocity_sensor(e, sensor_buf);
-    if (sensor != NULL) {
-        double S[9], turn[3];
-        vl_skew(sensor, S);
-        vl_matmul(S, &xi[3], turn, 3, 3, 1); /* p x (tau w): v_body = v - w x p */
+    double sensor_buf[3], turn[3];
+    const double *sensor = velocity_sensor(e, sensor_buf);
+    if (vl_predict_lever_term(e, &xi[3], turn)) { /* tau (v - w x p) */
         for (int i = 0; i < 3; ++i) {
             xi[i] += turn[i];
         }
@@ -106,12 +112,17 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
     advance(e, utime, tau, xi, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL, sensor);
 }
 
-const double *vl_predict_velocity_sensor(const vl_estimator_t *e, double p[3])
+int vl_predict_lever_term(const vl_estimator_t *e, const double w[3], double out[3])
 {
-    p[0] = e->cfg.velocity_sensor_x;
-    p[1] = e->cfg.velocity_sensor_y;
-    p[2] = e->cfg.velocity_sensor_z;
-    return (p[0] != 0.0 || p[1] != 0.0 || p[2] != 0.0) ? p : NULL;
+    double p[3];
+    if (velocity_sensor(e, p) == NULL) {
+        out[0] = out[1] = out[2] = 0.0;
+        return 0;
+    }
+    double S[9];
+    vl_skew(p, S);
+    vl_matmul(S, w, out, 3, 3, 1);
+    return 1;
 }
 
 /*

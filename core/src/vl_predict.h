@@ -24,10 +24,11 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime);
 void vl_predict_to_sample(vl_estimator_t *e, const vl_imu_sample_t *imu);
 
 /**
- * The configured position of the velocity sensor in the body frame (velocity_sensor_x, _y, _z)
- * in @p p, m; returns @p p, or NULL when the sensor is at the body origin (no lever arm).
+ * The velocity sensor's lever arm term p x w (p = velocity_sensor_x, _y, _z, the sensor's
+ * position in the body frame): the body origin's velocity is the sensor's plus it
+ * (v_body = v - w x p). @p out is zero, and the return 0, when the sensor is at the origin.
  */
-const double *vl_predict_velocity_sensor(const vl_estimator_t *e, double p[3]);
+int vl_predict_lever_term(const vl_estimator_t *e, const double w[3], double out[3]);
 
 /**
  * Propagates the state to utime across an IMU silence: with the held
