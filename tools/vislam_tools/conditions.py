@@ -78,8 +78,9 @@ def build_parser():
     p.add_argument("input", metavar="IN.npz", help="seed dataset")
     p.add_argument("output", metavar="OUT.npz", help="modified dataset to write (overwritten)")
     p.add_argument("--velocities", choices=("given", "clean", "clean-imu"), default="given",
-                   help="the dataset's velocities or clean ones from --gt (default given)")
-    p.add_argument("--gt", metavar="KITTI.txt", help="ground truth for --velocities clean")
+                   help="the dataset's velocities, or clean ones from --gt (clean-imu: of the real IMU; "
+                        "default given)")
+    p.add_argument("--gt", metavar="KITTI.txt", help="ground truth for --velocities clean and clean-imu")
     p.add_argument("--velocity-noise", type=_pair, default=None, metavar="SIGMA_V,SIGMA_W",
                    help="add Gaussian noise: std per sample, m/s and rad/s")
     p.add_argument("--velocity-noise-scale", type=float, default=None, metavar="X",
