@@ -1228,10 +1228,11 @@ static void print_summary(const daemon_t *d)
     }
     fprintf(stderr,
             "  core: frames accepted %" PRIu64 ", observations used %" PRIu64 ", gated %" PRIu64
-            ", landmarks mapped %" PRIu64 ", window %u/%u, numerical failures %" PRIu64 "\n",
+            ", landmarks mapped %" PRIu64 ", window %u/%u, numerical failures %" PRIu64
+            ", innovation ratio over the run %.3g\n",
             c->frames_accepted, c->observations_used, c->observations_gated, c->landmarks_marginalized,
             est != NULL ? (unsigned)vl_window_size(est) : 0u, (unsigned)vl_session_config(ss)->max_landmarks,
-            c->numerical_failures);
+            c->numerical_failures, vl_session_innovation_ratio(ss, 0));
     fprintf(stderr,
             "  robustness: time refused %" PRIu64 " (jumps %" PRIu64 "), timeline changes %" PRIu64
             ", divergence resets %" PRIu64 ", implausible imu %" PRIu64 " observations %" PRIu64
