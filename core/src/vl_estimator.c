@@ -579,7 +579,7 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
         out->angular_offset[i] = e->offset_angular[i];
     }
     double turn[3];
-    if (vl_predict_lever_term(e, out->angular_velocity, turn)) { /* the body origin's velocity */
+    if (vl_predict_lever_term(e, out->angular_velocity, turn, NULL)) { /* the body origin's velocity */
         for (int i = 0; i < 3; ++i) {
             out->linear_velocity[i] += turn[i];
         }

@@ -24,7 +24,7 @@
  * landmarks, which stay put).
  */
 static void advance(vl_estimator_t *e, int64_t utime, double tau, const double xi[6], const double noise_var[6],
-                    const double offset_var[6], const double sensor[3])
+                    const double offset_var[6], const double sensor_skew[9])
 {
     double dR[9], dp[3], Rn[9], t[3];
     vl_se3_exp(xi, dR, dp);
@@ -44,16 +44,14 @@ static void advance(vl_estimator_t *e, int64_t utime, double tau, const double x
     for (int i = 0; i < 36; ++i) {
         Gp[i] *= -tau;
     }
-    if (sensor != NULL) {
+    if (sensor_skew != NULL) {
         /* The body twist is T (u - n - db) with T = [I hat(p); 0 I]: G becomes G T, so the
          * angular noise and offsets reach the linear velocity through the lever arm. */
-        double S[9];
-        vl_skew(sensor, S);
         for (int i = 0; i < 6; ++i) {
             double add[3] = {0.0, 0.0, 0.0};
             for (int j = 0; j < 3; ++j) {
                 for (int k = 0; k < 3; ++k) {
-                    add[j] += Gp[6 * i + k] * S[3 * k + j];
+                    add[j] += Gp[6 * i + k] * sensor_skew[3 * k + j];
                 }
             }
             for (int j = 0; j < 3; ++j) {
@@ -94,11 +92,11 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
         xi[i] = tau * (lin[i] - e->offset_linear[i]);
         xi[3 + i] = tau * (ang[i] - e->offset_angular[i]);
     }
-    double sensor_buf[3], turn[3];
-    const double *sensor = velocity_sensor(e, sensor_buf);
-    if (vl_predict_lever_term(e, &xi[3], turn)) { /* tau (v - w x p) */
+    double S[9], turn[3];
+    const int lever = vl_predict_lever_term(e, &xi[3], turn, S);
+    if (lever) {
         for (int i = 0; i < 3; ++i) {
-            xi[i] += turn[i];
+            xi[i] += turn[i]; /* tau (v - w x p) */
         }
     }
     const double sv2 = e->linear_velocity_var * noise_share;
@@ -109,19 +107,18 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
     const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
     const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
     const double offset_var[6] = {qv, qv, qv, qw, qw, qw};
-    advance(e, utime, tau, xi, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL, sensor);
+    advance(e, utime, tau, xi, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL, lever ? S : NULL);
 }
 
-int vl_predict_lever_term(const vl_estimator_t *e, const double w[3], double out[3])
+int vl_predict_lever_term(const vl_estimator_t *e, const double w[3], double out[3], double skew[9])
 {
-    double p[3];
+    double p[3], S[9];
     if (velocity_sensor(e, p) == NULL) {
         out[0] = out[1] = out[2] = 0.0;
         return 0;
     }
-    double S[9];
-    vl_skew(p, S);
-    vl_matmul(S, w, out, 3, 3, 1);
+    vl_skew(p, skew != NULL ? skew : S);
+    vl_matmul(skew != NULL ? skew : S, w, out, 3, 3, 1);
     return 1;
 }
 

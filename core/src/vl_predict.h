@@ -26,9 +26,10 @@ void vl_predict_to_sample(vl_estimator_t *e, const vl_imu_sample_t *imu);
 /**
  * The velocity sensor's lever arm term p x w (p = velocity_sensor_x, _y, _z, the sensor's
  * position in the body frame): the body origin's velocity is the sensor's plus it
- * (v_body = v - w x p). @p out is zero, and the return 0, when the sensor is at the origin.
+ * (v_body = v - w x p); hat(p) in @p skew when it is not NULL. @p out is zero, and the return 0,
+ * when the sensor is at the origin.
  */
-int vl_predict_lever_term(const vl_estimator_t *e, const double w[3], double out[3]);
+int vl_predict_lever_term(const vl_estimator_t *e, const double w[3], double out[3], double skew[9]);
 
 /**
  * Propagates the state to utime across an IMU silence: with the held
