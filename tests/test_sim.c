@@ -332,6 +332,43 @@ static void test_vl_sim_step_zero_noise_gives_exact_measurements(void)
     TEST_ASSERT_EQUAL_INT(-1, vl_sim_landmark(&g_a, vl_sim_tracks_issued(&g_a), x));
 }
 
+/* A velocity sensor at p (--velocity-sensor) samples the velocity there: v + w x p, the angular
+ * velocity unchanged, and the frames and the truth the same as with the sensor at the IMU. */
+static void test_vl_sim_velocity_sensor_adds_the_turn_times_its_lever_arm(void)
+{
+    static const double lever[3] = {-1.9, 1.5, -1.0};
+    vl_sim_config_t cfg;
+    vl_imu_sample_t imu;
+    double R[9], p[3], Rb[9], pb[3];
+    int j, turning = 0;
+    vl_sim_config_default(&cfg);
+    cfg.num_steps = 60;
+    cfg.linear_noise = 0.0;
+    cfg.angular_noise = 0.0;
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_b, &cfg));
+    memcpy(cfg.velocity_sensor, lever, sizeof(lever));
+    TEST_ASSERT_EQUAL_INT(0, vl_sim_init(&g_a, &cfg));
+    while (vl_sim_step(&g_a, &imu, &g_fa, R, p) == 0) {
+        vl_imu_sample_t at_imu;
+        TEST_ASSERT_EQUAL_INT(0, vl_sim_step(&g_b, &at_imu, &g_fb, Rb, pb));
+        const double *w = vl_sim_true_imu(&g_a)->angular_velocity;
+        const double turn[3] = {w[1] * lever[2] - w[2] * lever[1], w[2] * lever[0] - w[0] * lever[2],
+                                w[0] * lever[1] - w[1] * lever[0]};
+        for (j = 0; j < 3; ++j) {
+            TEST_ASSERT_DOUBLE_WITHIN(1e-12, at_imu.linear_velocity[j] + turn[j], imu.linear_velocity[j]);
+            TEST_ASSERT_EQUAL_DOUBLE(at_imu.angular_velocity[j], imu.angular_velocity[j]);
+        }
+        turning += fabs(turn[0]) + fabs(turn[1]) + fabs(turn[2]) > 1e-3;
+        TEST_ASSERT_EQUAL_MEMORY(Rb, R, sizeof(R));
+        TEST_ASSERT_EQUAL_MEMORY(pb, p, sizeof(p));
+        TEST_ASSERT_EQUAL_UINT32(g_fb.count, g_fa.count);
+        TEST_ASSERT_EQUAL_MEMORY(g_fb.obs, g_fa.obs, g_fa.count * sizeof(g_fa.obs[0]));
+    }
+    TEST_ASSERT_TRUE(turning > 10); /* the drive turns, so the lever arm is seen */
+    cfg.velocity_sensor[1] = NAN;
+    TEST_ASSERT_EQUAL_INT(-1, vl_sim_init(&g_a, &cfg));
+}
+
 static void test_vl_sim_step_observation_statistics_like_real_data(void)
 {
     vl_sim_config_t cfg;
@@ -898,6 +935,7 @@ int main(void)
     RUN_TEST(test_vl_sim_step_truth_integrates_true_velocities);
     RUN_TEST(test_vl_sim_step_samples_are_instantaneous_velocities);
     RUN_TEST(test_vl_sim_step_zero_noise_gives_exact_measurements);
+    RUN_TEST(test_vl_sim_velocity_sensor_adds_the_turn_times_its_lever_arm);
     RUN_TEST(test_vl_sim_step_observation_statistics_like_real_data);
     RUN_TEST(test_vl_sim_conditions_off_leave_outputs_bit_identical);
     RUN_TEST(test_vl_sim_init_rejects_bad_conditions);

@@ -41,6 +41,8 @@ static void usage(FILE *f)
                "  --angular-noise RPS     angular velocity std [0.05]\n"
                "  --linear-offset X,Y,Z   constant linear velocity offset, m/s [0,0,0]\n"
                "  --angular-offset X,Y,Z  constant angular velocity offset, rad/s [0.005,0.005,0.005]\n"
+               "  --velocity-sensor X,Y,Z the linear velocity sensor's position in the IMU frame, m:\n"
+               "                          its samples are the velocity there, v + w x p [0,0,0]\n"
                "  --interval-velocities   the velocity is constant from one step to the next (each\n"
                "                          sample holds); default: it varies smoothly and each sample\n"
                "                          is the instantaneous velocity at its step\n"
@@ -91,6 +93,7 @@ static int takes_value(const char *a)
                                         "--angular-noise",
                                         "--linear-offset",
                                         "--angular-offset",
+                                        "--velocity-sensor",
                                         "--speed",
                                         "--points-per-meter",
                                         "--max-observations",
@@ -273,6 +276,8 @@ int main(int argc, char **argv)
             bad = parse_vec3(v, cfg.linear_offset) != 0;
         } else if (strcmp(a, "--angular-offset") == 0) {
             bad = parse_vec3(v, cfg.angular_offset) != 0;
+        } else if (strcmp(a, "--velocity-sensor") == 0) {
+            bad = parse_vec3(v, cfg.velocity_sensor) != 0;
         } else if (strcmp(a, "--speed") == 0) {
             bad = parse_double(v, &cfg.speed) != 0;
         } else if (strcmp(a, "--points-per-meter") == 0) {

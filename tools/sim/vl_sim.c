@@ -211,6 +211,7 @@ void vl_sim_config_default(vl_sim_config_t *cfg)
     for (i = 0; i < 3; ++i) {
         cfg->linear_offset[i] = 0.0;
         cfg->angular_offset[i] = 0.005;
+        cfg->velocity_sensor[i] = 0.0;
     }
     cfg->interval_velocities = 0;
 }
@@ -313,7 +314,7 @@ static int config_ok(const vl_sim_config_t *c)
                               c->stale_jump,
                               c->stale_jump_disparity};
     if (!finite_all(scalars, sizeof(scalars) / sizeof(scalars[0])) || !finite_all(c->linear_offset, 3) ||
-        !finite_all(c->angular_offset, 3) || !finite_all(&c->calibration.fx, 5) ||
+        !finite_all(c->angular_offset, 3) || !finite_all(c->velocity_sensor, 3) || !finite_all(&c->calibration.fx, 5) ||
         !finite_all(c->calibration.cam_T_imu, 16) || !finite_all(c->calib_rotation_error, 3) ||
         !finite_all(c->calib_translation_error, 3)) {
         return 0;
@@ -934,8 +935,10 @@ int vl_sim_step(vl_sim_t *sim, vl_imu_sample_t *imu, vl_stereo_frame_t *frame, d
     }
     {
         double lin[3], ang[3];
+        const double *w = &pose->u[3], *q = c->velocity_sensor;
+        const double turn[3] = {w[1] * q[2] - w[2] * q[1], w[2] * q[0] - w[0] * q[2], w[0] * q[1] - w[1] * q[0]};
         for (i = 0; i < 3; ++i) {
-            lin[i] = pose->u[i] + c->linear_offset[i] + c->linear_noise * rng_normal(&sim->rng_noise);
+            lin[i] = pose->u[i] + turn[i] + c->linear_offset[i] + c->linear_noise * rng_normal(&sim->rng_noise);
         }
         for (i = 0; i < 3; ++i) {
             ang[i] = pose->u[3 + i] + c->angular_offset[i] + c->angular_noise * rng_normal(&sim->rng_noise);

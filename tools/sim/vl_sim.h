@@ -137,12 +137,14 @@ typedef struct {
     double track_length_mean;     /**< frames, mean of the per-track maximum length */
     uint32_t track_length_min;    /**< frames, shortest per-track maximum length (>= 1) */
 
-    double pixel_noise;       /**< px, std of each of u_left, v_left, u_right, v_right */
-    double linear_noise;      /**< m/s, std of each linear velocity sample and axis */
-    double angular_noise;     /**< rad/s, std of each angular velocity sample and axis */
-    double linear_offset[3];  /**< m/s, constant offset added to the linear velocities */
-    double angular_offset[3]; /**< rad/s, constant offset added to the angular velocities */
-    int interval_velocities;  /**< 1: the velocity is constant between steps (the sample holds until the next) */
+    double pixel_noise;        /**< px, std of each of u_left, v_left, u_right, v_right */
+    double linear_noise;       /**< m/s, std of each linear velocity sample and axis */
+    double angular_noise;      /**< rad/s, std of each angular velocity sample and axis */
+    double linear_offset[3];   /**< m/s, constant offset added to the linear velocities */
+    double angular_offset[3];  /**< rad/s, constant offset added to the angular velocities */
+    double velocity_sensor[3]; /**< m, the linear velocity sensor's position in the IMU frame: its samples are the
+                                  velocity there, v + w x p (0: at the IMU, as the estimator's default assumes) */
+    int interval_velocities;   /**< 1: the velocity is constant between steps (the sample holds until the next) */
 
     /* Realistic conditions (see the file comment); 0 turns each one off. */
     double stale_probability;          /**< per frame after step 0, that the frame is stale */
