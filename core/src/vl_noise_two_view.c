@@ -19,6 +19,7 @@
 #include "vl_camera.h"
 #include "vl_estimator_internal.h"
 #include "vl_guard.h"
+#include "vl_predict.h"
 #include "vl_se3.h"
 #include "vl_stereo.h"
 #include "vl_work.h"
@@ -428,14 +429,39 @@ static double chi2_quantile_99(uint32_t k)
 }
 
 /* The motion error the filter expects over the interval, per axis of the body frame: the input
- * noise (the velocity variance x sum tau^2) and the offsets' error (their variance x (sum tau)^2). */
+ * noise (the velocity variance x sum tau^2) and the offsets' error (their variance x (sum tau)^2),
+ * both through the input map T = [I hat(p); 0 I] of a velocity sensor at p, which the
+ * prediction applies: there the angular noise and offsets reach the linear motion as hat(p)
+ * times them. The diagonal of T Q T^T, as the fit weighs each axis on its own. */
 static void expected_motion_error(const vl_estimator_t *e, double q[6])
 {
+    double input[36] = {0}, skew[9];
     for (int i = 0; i < 6; ++i) {
-        q[i] = (i < 3 ? e->linear_velocity_var : e->angular_velocity_var) * e->step_noise_time2;
-        if (e->cfg.estimate_input_offsets) {
-            const uint32_t col = (i < 3 ? VL_IDX_OFFSET_LIN : VL_IDX_OFFSET_ANG - 3u) + (uint32_t)i;
-            q[i] += vl_P_value(e, col, col) * e->step_time * e->step_time;
+        input[7 * i] = (i < 3 ? e->linear_velocity_var : e->angular_velocity_var) * e->step_noise_time2;
+    }
+    if (e->cfg.estimate_input_offsets) {
+        const double t2 = e->step_time * e->step_time;
+        for (int i = 0; i < 6; ++i) {
+            for (int j = 0; j <= i; ++j) {
+                const double v = vl_P_value(e, VL_IDX_OFFSET_LIN + (uint32_t)i, VL_IDX_OFFSET_LIN + (uint32_t)j) * t2;
+                input[6 * i + j] += v;
+                input[6 * j + i] += i != j ? v : 0.0;
+            }
+        }
+    }
+    for (int i = 0; i < 6; ++i) {
+        q[i] = input[7 * i];
+    }
+    if (!vl_predict_sensor_skew(e, skew)) {
+        return;
+    }
+    /* (T Q T^T)_ii on the linear rows: Q_ii + 2 (hat(p) Q_al)_ii + (hat(p) Q_aa hat(p)^T)_ii. */
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            q[i] += 2.0 * skew[3 * i + j] * input[6 * (3 + j) + i];
+            for (int k = 0; k < 3; ++k) {
+                q[i] += skew[3 * i + j] * input[6 * (3 + j) + 3 + k] * skew[3 * i + k];
+            }
         }
     }
 }

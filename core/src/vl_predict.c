@@ -110,14 +110,23 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
     advance(e, utime, tau, xi, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL, lever ? S : NULL);
 }
 
+int vl_predict_sensor_skew(const vl_estimator_t *e, double skew[9])
+{
+    double p[3];
+    if (velocity_sensor(e, p) == NULL) {
+        return 0;
+    }
+    vl_skew(p, skew);
+    return 1;
+}
+
 int vl_predict_lever_term(const vl_estimator_t *e, const double w[3], double out[3], double skew[9])
 {
-    double p[3], S[9];
-    if (velocity_sensor(e, p) == NULL) {
+    double S[9];
+    if (!vl_predict_sensor_skew(e, skew != NULL ? skew : S)) {
         out[0] = out[1] = out[2] = 0.0;
         return 0;
     }
-    vl_skew(p, skew != NULL ? skew : S);
     vl_matmul(skew != NULL ? skew : S, w, out, 3, 3, 1);
     return 1;
 }

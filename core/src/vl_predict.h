@@ -24,6 +24,14 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime);
 void vl_predict_to_sample(vl_estimator_t *e, const vl_imu_sample_t *imu);
 
 /**
+ * hat(p) of the velocity sensor's position p (velocity_sensor_x, _y, _z) in @p skew: the
+ * body twist is T u with T = [I hat(p); 0 I], so the angular noise and offsets reach the
+ * linear velocity through it. Returns 0, and leaves @p skew alone, when the sensor is at the
+ * origin.
+ */
+int vl_predict_sensor_skew(const vl_estimator_t *e, double skew[9]);
+
+/**
  * The velocity sensor's lever arm term p x w (p = velocity_sensor_x, _y, _z, the sensor's
  * position in the body frame): the body origin's velocity is the sensor's plus it
  * (v_body = v - w x p); hat(p) in @p skew when it is not NULL. @p out is zero, and the return 0,

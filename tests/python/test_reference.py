@@ -190,6 +190,31 @@ def test_reference_agrees_with_a_velocity_sensor_lever_arm(build_dir, tmp_path):
     assert rc == 1
 
 
+def test_reference_agrees_on_sparse_frames_with_a_velocity_sensor_lever_arm(build_dir, tmp_path, monkeypatch):
+    """On a sparse drive whose velocity sensor is 15 m from the IMU (vislam-sim --velocity-sensor, 5
+    observations a frame), the two-view matching expects the angular noise's and offsets' share
+    through the lever arm in the linear motion error, in the reference too (it agrees), and that
+    matters (with the linear noise alone expected in the reference only, the poses move)."""
+    from reference import compare as compare_tool
+    from reference import vl_reference
+    log = tmp_path / "lever.lcmlog"
+    subprocess.run([str(build_dir / "bin" / "vislam-sim"), "--max-observations", "5", "--steps", "60", "--seed", "4",
+                    "--pixel-noise", "0.3", "--velocity-sensor", "-12,8,-4", "--out", str(log), "--truth",
+                    str(tmp_path / "truth.tum")], check=True, capture_output=True)
+    ini = tmp_path / "lever.ini"
+    ini.write_text("[estimator]\nvelocity_sensor_x = -12\nvelocity_sensor_y = 8\nvelocity_sensor_z = -4\n")
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "60", log=log)
+    assert_agrees(rc, fig, 60)
+
+    def linear_noise_alone(self):
+        q = np.array([self.var_v * self.step_t2] * 3 + [self.var_w * self.step_t2] * 3)
+        return q + np.diag(self.P)[6:12] * self.step_t * self.step_t
+
+    monkeypatch.setattr(vl_reference.Filter, "expected_motion_error", linear_noise_alone)
+    args = [str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", "60"]
+    assert compare_tool.main([*args, "--config", str(ini)]) == 1
+
+
 def agrees_and_matters(build_dir, tmp_path, monkeypatch, config, steps, rule_ratio, log=SAMPLE):
     """The two agree on the log's first steps (the sample's by default) under the INI text config, and
     no longer do once the reference alone sets its constant rule_ratio to infinity (the rule never

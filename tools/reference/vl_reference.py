@@ -996,21 +996,34 @@ class Filter:
                 moved.add(t[4])
         return moved if 2 * len(moved) < n else set()
 
+    def expected_motion_error(self):
+        """The motion error the filter expects over the interval, per body axis: the diagonal of
+        T Q T^T, Q the input noise (the velocity variance x sum tau^2) plus the offsets' block of P x
+        (sum tau)^2, T = [I hat(p); 0 I] the input map of a velocity sensor at p (identity at the
+        origin), through which the angular noise and offsets reach the linear motion."""
+        Q = np.diag([self.var_v * self.step_t2] * 3 + [self.var_w * self.step_t2] * 3)
+        if self.cfg["estimate_input_offsets"]:
+            Q = Q + self.P[6:12, 6:12] * self.step_t * self.step_t
+        sensor = np.array([self.cfg[f"velocity_sensor_{a}"] for a in "xyz"], float)
+        if np.any(sensor != 0.0):
+            T = np.eye(6)
+            T[:3, 3:] = hat3(sensor)
+            Q = T @ Q @ T.T
+        return np.diag(Q).copy()
+
     def adapt_velocity_two_view(self, frame, contradicted):
         """A sparse frame's tracks in both views, r = y - h(predicted motion, previous triangulation)
         = H delta + e (delta the right perturbation of the predicted pose, e both sightings' pixel
         noise at the stereo rows' estimate): a weighted least-squares fit of delta and its
-        covariance C; each block matched against C plus the expected motion error q (the velocity
-        variance x sum tau^2, the offsets' x (sum tau)^2). Tracks that alone contradict q are left
+        covariance C; each block matched against C plus the expected motion error q
+        (expected_motion_error). Tracks that alone contradict q are left
         out (their observations go to contradicted), and broken (self.moved) when they did so in the
         previous frame too, as are those that contradict the others' fit; a frame whose fit
         residual exceeds its 99 % chi-square quantile is not matched."""
         if len(frame) >= VELOCITY_DENSE_FRAME or not self.var_rows > 0.0 or not self.step_t2 > 0.0:
             return False
         nv = stereo_noise(self.var_rows)
-        q = np.array([self.var_v * self.step_t2] * 3 + [self.var_w * self.step_t2] * 3)
-        if self.cfg["estimate_input_offsets"]:
-            q = q + np.diag(self.P)[6:12] * self.step_t * self.step_t
+        q = self.expected_motion_error()
         cal, terms = self.cal, []
         for i, o in enumerate(frame):
             if not self._usable(o):
