@@ -46,6 +46,26 @@ def test_evo_ape_on_the_written_ground_truth_agrees_on_0027(shared_data, tmp_pat
     assert evo_rmse("evo_ape", ["tum", gt, dr, "-a"], tmp_path) == pytest.approx(res["ate"]["rmse"], abs=1e-6)
 
 
+def test_velocities_of_0027_against_the_truth_match_the_data_readme(shared_data, tmp_path):
+    """`evaluate velocities` on 0027 against KITTI 07: the noise the data README states (about 0.5 m/s
+    and 0.05 rad/s per sample; measured 0.51 and 0.053), its angular offsets (about 0.005 rad/s on
+    each axis), and the horizontal lever arm of the velocities' point in the data's body frame
+    (-1.47, 1.50 m), which the seed's cam_T_imu translation puts there (KITTI's calibration: -1.87,
+    1.46)."""
+    gt_path = shared_data / "gt" / "kitti_odometry_07.txt"
+    if not gt_path.is_file():
+        pytest.skip(f"ground truth {gt_path} absent")
+    npz, gt, js = shared_data / "0027.npz", tmp_path / "gt.tum", tmp_path / "v.json"
+    assert evaluate(["gt", "--gt", str(gt_path), "--calib", str(npz), "--out", str(gt)]) == 0
+    assert evaluate(["velocities", "--velocities", str(npz), "--reference", str(gt), "--json", str(js)]) == 0
+    res = json.loads(js.read_text())
+    assert res["intervals"] == 1100
+    np.testing.assert_allclose(res["linear_sample_std"], 0.5, rtol=0.05)
+    np.testing.assert_allclose(res["angular_sample_std"], 0.05, rtol=0.1)
+    np.testing.assert_allclose(res["angular_offset"], 0.005, atol=0.002)
+    np.testing.assert_allclose(res["velocity_sensor"][:2], [-1.47, 1.50], atol=0.2)
+
+
 def test_npz2lcm_converts_the_start_of_0027(vislam_types, shared_data, tmp_path):
     out = tmp_path / "0027.lcmlog"
     s = convert(shared_data / "0027.npz", out, max_steps=20)

@@ -13,9 +13,10 @@ import numpy as np
 
 from . import ToolError, cli
 from .geometry import integrate_dead_reckoning, se3_inv
-from .metrics import CHI2_3DOF_95, associate, ate, consistency, reprojection_check, rpe, segment_differences
+from .metrics import (CHI2_3DOF_95, associate, ate, consistency, reprojection_check, rpe, segment_differences,
+                      velocity_calibration)
 from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, read_ground_truth, read_map,
-                     read_tum, write_tum)
+                     read_tum, read_velocities, write_tum)
 
 EPILOG = """\
 Formats:
@@ -75,6 +76,60 @@ def _add_gt_args(p, required, scale=True, pairing=True):
     if scale:
         p.add_argument("--scale", action="store_true",
                        help="Sim(3) alignment (also estimate scale); default is rigid SE(3)")
+
+
+VELOCITIES_DESCRIPTION = """\
+What a trajectory of the drive says about its velocity samples. Over each interval between two
+consecutive poses of the reference, its body twist is compared with the samples' motion (the
+trapezoid of the two samples, or the held one), and fitted as
+
+    linear  = v + w x p + b_v + noise      angular = w + b_w + noise
+
+with v, w the reference's: p is where the linear velocity is measured in the body frame (vislam's
+[estimator] velocity_sensor_x/_y/_z), b_v and b_w constant offsets (what vislam's offset states
+learn). The residuals' std gives each sample's noise, the reference's own error included: an upper
+bound for [noise] linear_velocity and angular_velocity.
+
+Against ground truth this is a calibration of the velocity sensor. Against vislam's own trajectory
+it says what the images ask of the velocities (a lever arm or offsets the vision disagrees with).
+A value is printed as significant when it lies over 3 of its standard errors from 0.
+
+Example (0027, KITTI ground truth):
+  evaluate gt --gt ../shared/data/gt/kitti_odometry_07.txt --calib ../shared/data/0027.npz --out gt.tum
+  evaluate velocities --velocities ../shared/data/0027.npz --reference gt.tum
+"""
+
+
+def cmd_velocities(args):
+    times, lin, ang = read_velocities(args.velocities)
+    ref = read_tum(args.reference)
+    res = velocity_calibration(ref.times, ref.poses, times, lin, ang, held=args.held, max_dt=args.max_dt)
+
+    def row(name, value, se, unit):
+        flag = ["*" if abs(v) > 3.0 * e else " " for v, e in zip(value, se)]
+        cells = "  ".join(f"{v:+9.4f} +- {e:.4f}{f}" for v, e, f in zip(value, se, flag))
+        return f"{name:<22} {cells}  {unit}"
+
+    print(f"{res['intervals']} intervals of {ref.name} against {args.velocities} "
+          f"({'held samples' if args.held else 'trapezoid'}); x, y, z; * over 3 standard errors from 0")
+    print(row("velocity sensor p", res["velocity_sensor"], res["velocity_sensor_se"], "m"))
+    print(row("linear offset b_v", res["linear_offset"], res["linear_offset_se"], "m/s"))
+    print(row("angular offset b_w", res["angular_offset"], res["angular_offset_se"], "rad/s"))
+    print(f"{'sample noise, linear':<22} " + "  ".join(f"{v:9.4f}{'':14}" for v in res["linear_sample_std"]) + "  m/s")
+    print(f"{'sample noise, angular':<22} " + "  ".join(f"{v:9.4f}{'':14}" for v in res["angular_sample_std"])
+          + "  rad/s")
+    p, se = res["velocity_sensor"], res["velocity_sensor_se"]
+    print("[estimator]")
+    for axis, v, e in zip("xyz", p, se):
+        print(f"velocity_sensor_{axis} = {v:.3f}" if abs(v) > 3.0 * e else f"; velocity_sensor_{axis}: not "
+              f"significant ({v:+.3f} +- {e:.3f})")
+    print("[noise]")
+    print(f"linear_velocity = {float(np.sqrt(np.mean(res['linear_sample_std'] ** 2))):.3g}")
+    print(f"angular_velocity = {float(np.sqrt(np.mean(res['angular_sample_std'] ** 2))):.3g}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in res.items()}, f, indent=1)
+    return 0
 
 
 def build_parser():
@@ -152,6 +207,20 @@ def build_parser():
                    help="trajectory (TUM, paired with the dataset's frames by time); repeat for more")
     p.add_argument("--length", type=int, default=1, metavar="K", help="frames per segment (default 1)")
     p.add_argument("--min-disparity", type=float, default=3.0, help="px, tracks triangulated (default 3)")
+
+    p = sub.add_parser("velocities", help="the velocity sensor's lever arm, offsets and noise, against a trajectory",
+                       description=VELOCITIES_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--velocities", required=True, metavar="DATA.npz|LOG.lcmlog",
+                   help="the velocity samples: a seed dataset, or an LCM log's VISLAM_IMU events")
+    p.add_argument("--reference", required=True, metavar="REF.tum",
+                   help="world-from-body trajectory of the same drive: ground truth (evaluate gt, vislam-sim "
+                        "--truth) or a vislam-run trajectory")
+    p.add_argument("--held", action="store_true",
+                   help="each sample holds until the next (interpolate_velocities = false); default: the "
+                        "trapezoid of the samples at both ends of an interval")
+    p.add_argument("--max-dt", type=float, default=0.02, metavar="S",
+                   help="largest time difference between a pose and its sample (default 0.02 s)")
+    p.add_argument("--json", metavar="OUT.json", help="also write the numbers as JSON")
 
     p = sub.add_parser("deadreckon", help="integrate a dataset's velocities into a TUM trajectory",
                        description="w_T_i(t+1) = w_T_i(t) exp(tau_t hat(u_t)), w_T_i(0) = I; one line per step.")
@@ -477,7 +546,7 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     handlers = {"ate": cmd_ate, "plot": cmd_plot, "animate": cmd_animate, "deadreckon": cmd_deadreckon,
                 "consistency": cmd_consistency, "gt": cmd_gt, "segments": cmd_segments,
-                "reprojection": cmd_reprojection}
+                "reprojection": cmd_reprojection, "velocities": cmd_velocities}
     try:
         return handlers[args.command](args)
     except ToolError as exc:

@@ -14,7 +14,7 @@ from evo.core import sync as evo_sync
 from evo.core.trajectory import PosePath3D
 
 from . import ToolError
-from .geometry import make_pose
+from .geometry import hat3, make_pose, se3_inv, se3_log
 
 
 def associate(est_times, gt_times, mode="auto", max_dt=0.02):
@@ -268,3 +268,62 @@ def reprojection_check(features, frame_times, fx, fy, cx, cy, baseline, cam_T_im
         starts.append(a)
         medians.append(row)
     return {"start": np.array(starts, dtype=int), "median": np.array(medians).reshape(-1, len(trajectories) + 1)}
+
+
+def velocity_calibration(ref_times, ref_poses, sample_times, lin, ang, held=False, max_dt=0.02):
+    """What a trajectory says about the velocity samples that drove it: over each interval between two
+    consecutive reference poses (world-from-body), the body twist that moves one to the other,
+    u = log(T_i^-1 T_i+1) / dt, against the samples' own motion over it (the mean of the samples at
+    both ends, the trapezoid vislam integrates by default; with held, the sample at its start).
+
+    Model, per interval: lin = v + w x p + b_v + e_v, ang = w + b_w + e_w, with v, w the reference's,
+    p the velocity sensor's position in the body frame (vislam's velocity_sensor_*), b_v, b_w constant
+    offsets. p and b_v by least squares on the three linear rows of every interval; b_w by the mean.
+    Standard errors from the pooled residual variance. The residuals' std per axis is that of an
+    interval's measured motion against the reference's, the reference's own error included; a sample's
+    (the trapezoid's mean of two halves its variance) is given as sample_std.
+
+    Returns a dict, or raises ToolError when fewer than 20 intervals pair with samples.
+    """
+    sample_times = np.asarray(sample_times, dtype=float)
+    lin, ang = np.asarray(lin, dtype=float), np.asarray(ang, dtype=float)
+    idx = np.clip(np.searchsorted(sample_times, ref_times), 1, len(sample_times) - 1)
+    nearest = np.where(np.abs(sample_times[idx - 1] - ref_times) <= np.abs(sample_times[idx] - ref_times), idx - 1, idx)
+    paired = np.abs(sample_times[nearest] - ref_times) <= max_dt
+    meas_v, meas_w, ref_v, ref_w = [], [], [], []
+    for i in range(len(ref_times) - 1):
+        dt = ref_times[i + 1] - ref_times[i]
+        if not (paired[i] and paired[i + 1] and dt > 0.0):
+            continue
+        u = se3_log(se3_inv(ref_poses[i]) @ ref_poses[i + 1]) / dt
+        a, b = nearest[i], nearest[i + 1]
+        meas_v.append(lin[a] if held else 0.5 * (lin[a] + lin[b]))
+        meas_w.append(ang[a] if held else 0.5 * (ang[a] + ang[b]))
+        ref_v.append(u[:3])
+        ref_w.append(u[3:])
+    n = len(ref_v)
+    if n < 20:
+        raise ToolError(f"velocities: {n} intervals pair the trajectory with velocity samples (20 needed; "
+                        f"is the trajectory of the same drive, and --max-dt {max_dt} s wide enough?)")
+    meas_v, meas_w, ref_v, ref_w = map(np.array, (meas_v, meas_w, ref_v, ref_w))
+    A = np.zeros((3 * n, 6))
+    for k in range(n):
+        A[3 * k:3 * k + 3, :3] = hat3(ref_w[k])  # w x p
+        A[3 * k:3 * k + 3, 3:] = np.eye(3)
+    y = (meas_v - ref_v).reshape(-1)
+    x, *_ = np.linalg.lstsq(A, y, rcond=None)
+    res_v = (y - A @ x).reshape(n, 3)
+    sigma2 = float(res_v.var() * 3 * n / (3 * n - 6))
+    cov = sigma2 * np.linalg.inv(A.T @ A)
+    res_w = meas_w - ref_w
+    b_w = res_w.mean(axis=0)
+    share = 1.0 if held else 0.5
+    return {
+        "intervals": n,
+        "velocity_sensor": x[:3], "velocity_sensor_se": np.sqrt(np.diag(cov))[:3],
+        "linear_offset": x[3:], "linear_offset_se": np.sqrt(np.diag(cov))[3:],
+        "angular_offset": b_w, "angular_offset_se": res_w.std(axis=0, ddof=1) / np.sqrt(n),
+        "linear_std": res_v.std(axis=0, ddof=1), "angular_std": (res_w - b_w).std(axis=0, ddof=1),
+        "linear_sample_std": res_v.std(axis=0, ddof=1) / np.sqrt(share),
+        "angular_sample_std": (res_w - b_w).std(axis=0, ddof=1) / np.sqrt(share),
+    }

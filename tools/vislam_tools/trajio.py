@@ -321,6 +321,38 @@ def _calibration_from_lcmlog(path):
     return calib
 
 
+def read_velocities(path):
+    """The velocity samples of a seed .npz (time_stamps, linear_velocity, rotational_velocity) or of an
+    .lcmlog (every vislam.imu_t on a *IMU channel): (times s, linear (N, 3) m/s, angular (N, 3) rad/s),
+    in time order."""
+    p = Path(path)
+    if not p.is_file():
+        raise ToolError(f"velocity source {path} does not exist")
+    if p.suffix == ".npz":
+        data = load_npz(p)
+        times = np.asarray(data["time_stamps"], dtype=float).reshape(-1)
+        lin = np.asarray(data["linear_velocity"], dtype=float).T
+        ang = np.asarray(data["rotational_velocity"], dtype=float).T
+    else:
+        vislam, log = _open_lcmlog(p)
+        rows = []
+        for ev in log:
+            if not ev.channel.endswith("IMU"):
+                continue
+            try:
+                msg = vislam.imu_t.decode(ev.data)
+            except ValueError:
+                continue  # same channel suffix, other type
+            rows.append((msg.utime * 1e-6, *msg.linear_velocity, *msg.angular_velocity))
+        log.close()
+        if not rows:
+            raise ToolError(f"{path}: no vislam.imu_t event on a *IMU channel")
+        a = np.array(rows, dtype=float)
+        times, lin, ang = a[:, 0], a[:, 1:4], a[:, 4:7]
+    order = np.argsort(times, kind="stable")
+    return times[order], lin[order], ang[order]
+
+
 def load_calibration(path):
     """cam_T_imu and step times from a seed .npz or from the calibration event of an .lcmlog."""
     p = Path(path)
