@@ -13,7 +13,7 @@ import numpy as np
 
 from . import ToolError, cli
 from .geometry import integrate_dead_reckoning, se3_inv
-from .metrics import (CHI2_3DOF_95, associate, ate, consistency, reprojection_check, rpe, segment_differences,
+from .metrics import (CHI2_3DOF_95, CHI2_6DOF_99, associate, ate, consistency, reprojection_check, rpe, segment_differences,
                       velocity_calibration)
 from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, read_ground_truth, read_map,
                      read_tum, read_velocities, write_tum)
@@ -88,7 +88,13 @@ trapezoid of the two samples, or the held one), and fitted as
 with v, w the reference's: p is where the linear velocity is measured in the body frame (vislam's
 [estimator] velocity_sensor_x/_y/_z), b_v and b_w constant offsets (what vislam's offset states
 learn). The residuals' std gives each sample's noise, the reference's own error included: an upper
-bound for [noise] linear_velocity and angular_velocity.
+bound for [noise] linear_velocity and angular_velocity. Both ways of taking an interval's motion
+from the samples are fitted (the trapezoid of its two samples, vislam's default, and the first one
+held, interpolate_velocities = false); the one with the smaller residual is reported unless
+--sampling names one. Offset states are suggested off (estimate_input_offsets = false) when the
+six offsets together are not told from zero (their chi-square under its 99 % quantile, 16.8): on
+velocities without biases they only take up the images' errors (README, Setting it up for your
+sensors).
 
 Against ground truth this is a calibration of the velocity sensor. Against vislam's own trajectory
 it says what the images ask of the velocities (a lever arm or offsets the vision disagrees with).
@@ -103,15 +109,20 @@ Example (0027, KITTI ground truth):
 def cmd_velocities(args):
     times, lin, ang = read_velocities(args.velocities)
     ref = read_tum(args.reference)
-    res = velocity_calibration(ref.times, ref.poses, times, lin, ang, held=args.held, max_dt=args.max_dt)
+    fits = {mode: velocity_calibration(ref.times, ref.poses, times, lin, ang, held=mode == "held", max_dt=args.max_dt)
+            for mode in ("trapezoid", "held")}
+    misfit = {mode: float(np.sum(r["linear_std"] ** 2)) for mode, r in fits.items()}
+    mode = min(misfit, key=misfit.get) if args.sampling == "auto" else args.sampling
+    res = fits[mode]
 
     def row(name, value, se, unit):
         flag = ["*" if abs(v) > 3.0 * e else " " for v, e in zip(value, se)]
         cells = "  ".join(f"{v:+9.4f} +- {e:.4f}{f}" for v, e, f in zip(value, se, flag))
         return f"{name:<22} {cells}  {unit}"
 
-    print(f"{res['intervals']} intervals of {ref.name} against {args.velocities} "
-          f"({'held samples' if args.held else 'trapezoid'}); x, y, z; * over 3 standard errors from 0")
+    print(f"{res['intervals']} intervals of {ref.name} against {args.velocities} ({mode}; linear residual "
+          f"{np.sqrt(misfit['trapezoid']):.4f} m/s with the trapezoid, {np.sqrt(misfit['held']):.4f} with the samples "
+          f"held); x, y, z; * over 3 standard errors from 0")
     print(row("velocity sensor p", res["velocity_sensor"], res["velocity_sensor_se"], "m"))
     print(row("linear offset b_v", res["linear_offset"], res["linear_offset_se"], "m/s"))
     print(row("angular offset b_w", res["angular_offset"], res["angular_offset_se"], "rad/s"))
@@ -119,7 +130,11 @@ def cmd_velocities(args):
     print(f"{'sample noise, angular':<22} " + "  ".join(f"{v:9.4f}{'':14}" for v in res["angular_sample_std"])
           + "  rad/s")
     p, se = res["velocity_sensor"], res["velocity_sensor_se"]
+    chi2 = res["offsets_chi2"]
     print("[estimator]")
+    print(f"interpolate_velocities = {'false' if mode == 'held' else 'true'}")
+    print(f"; estimate_input_offsets: keep (the offsets against zero: chi-square {chi2:.1f} over {CHI2_6DOF_99})"
+          if chi2 > CHI2_6DOF_99 else "estimate_input_offsets = false")
     for axis, v, e in zip("xyz", p, se):
         print(f"velocity_sensor_{axis} = {v:.3f}" if abs(v) > 3.0 * e else f"; velocity_sensor_{axis}: not "
               f"significant ({v:+.3f} +- {e:.3f})")
@@ -128,7 +143,8 @@ def cmd_velocities(args):
     print(f"angular_velocity = {float(np.sqrt(np.mean(res['angular_sample_std'] ** 2))):.3g}")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in res.items()}, f, indent=1)
+            json.dump({"sampling": mode, **{k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                                            for k, v in res.items()}}, f, indent=1)
     return 0
 
 
@@ -215,9 +231,9 @@ def build_parser():
     p.add_argument("--reference", required=True, metavar="REF.tum",
                    help="world-from-body trajectory of the same drive: ground truth (evaluate gt, vislam-sim "
                         "--truth) or a vislam-run trajectory")
-    p.add_argument("--held", action="store_true",
-                   help="each sample holds until the next (interpolate_velocities = false); default: the "
-                        "trapezoid of the samples at both ends of an interval")
+    p.add_argument("--sampling", choices=("auto", "trapezoid", "held"), default="auto",
+                   help="an interval's motion: the trapezoid of the samples at both ends (interpolate_velocities "
+                        "= true), the sample at its start held (false), or whichever fits better (default auto)")
     p.add_argument("--max-dt", type=float, default=0.02, metavar="S",
                    help="largest time difference between a pose and its sample (default 0.02 s)")
     p.add_argument("--json", metavar="OUT.json", help="also write the numbers as JSON")

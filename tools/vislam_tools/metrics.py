@@ -118,6 +118,7 @@ def rpe(est_poses, gt_poses, delta):
 
 # 0.95 quantile of chi-square with 3 degrees of freedom: a consistent filter's position NEES
 # exceeds it in about 5 % of the frames.
+CHI2_6DOF_99 = 16.812  # chi-square quantile, 6 degrees of freedom, 99 %
 CHI2_3DOF_95 = 7.814727903251178
 
 
@@ -279,7 +280,8 @@ def velocity_calibration(ref_times, ref_poses, sample_times, lin, ang, held=Fals
     Model, per interval: lin = v + w x p + b_v + e_v, ang = w + b_w + e_w, with v, w the reference's,
     p the velocity sensor's position in the body frame (vislam's velocity_sensor_*), b_v, b_w constant
     offsets. p and b_v by least squares on the three linear rows of every interval; b_w by the mean.
-    Standard errors from the pooled residual variance. The residuals' std per axis is that of an
+    Standard errors from the pooled residual variance; offsets_chi2 tests the six offsets against zero
+    together (chi-square with 6 degrees of freedom without offsets). The residuals' std per axis is that of an
     interval's measured motion against the reference's, the reference's own error included; a sample's
     (the trapezoid's mean of two halves its variance) is given as sample_std.
 
@@ -317,12 +319,16 @@ def velocity_calibration(ref_times, ref_poses, sample_times, lin, ang, held=Fals
     cov = sigma2 * np.linalg.inv(A.T @ A)
     res_w = meas_w - ref_w
     b_w = res_w.mean(axis=0)
+    b_w_se = res_w.std(axis=0, ddof=1) / np.sqrt(n)
     share = 1.0 if held else 0.5
+    # The six offsets against zero at once, each block with its covariance: chi-square with 6
+    # degrees of freedom when the samples carry none.
+    chi2 = float(x[3:] @ np.linalg.solve(cov[3:, 3:], x[3:]) + np.sum((b_w / b_w_se) ** 2))
     return {
         "intervals": n,
         "velocity_sensor": x[:3], "velocity_sensor_se": np.sqrt(np.diag(cov))[:3],
         "linear_offset": x[3:], "linear_offset_se": np.sqrt(np.diag(cov))[3:],
-        "angular_offset": b_w, "angular_offset_se": res_w.std(axis=0, ddof=1) / np.sqrt(n),
+        "angular_offset": b_w, "angular_offset_se": b_w_se, "offsets_chi2": chi2,
         "linear_std": res_v.std(axis=0, ddof=1), "angular_std": (res_w - b_w).std(axis=0, ddof=1),
         "linear_sample_std": res_v.std(axis=0, ddof=1) / np.sqrt(share),
         "angular_sample_std": (res_w - b_w).std(axis=0, ddof=1) / np.sqrt(share),
