@@ -13,8 +13,8 @@ import numpy as np
 
 from . import ToolError, cli
 from .geometry import integrate_dead_reckoning, se3_inv
-from .metrics import (CHI2_3DOF_95, CHI2_6DOF_99, associate, ate, consistency, reprojection_check, rpe, segment_differences,
-                      velocity_calibration)
+from .metrics import (CHI2_3DOF_95, CHI2_6DOF_99, associate, ate, consistency, reprojection_check, rpe,
+                      segment_differences, velocity_calibration)
 from .trajio import (Trajectory, load_calibration, load_npz, read_covariance, read_ground_truth, read_map,
                      read_tum, read_velocities, write_tum)
 

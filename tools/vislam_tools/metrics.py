@@ -315,7 +315,7 @@ def velocity_calibration(ref_times, ref_poses, sample_times, lin, ang, held=Fals
     y = (meas_v - ref_v).reshape(-1)
     x, *_ = np.linalg.lstsq(A, y, rcond=None)
     res_v = (y - A @ x).reshape(n, 3)
-    sigma2 = float(res_v.var() * 3 * n / (3 * n - 6))
+    sigma2 = float(np.sum(res_v ** 2) / (3 * n - 6))
     cov = sigma2 * np.linalg.inv(A.T @ A)
     res_w = meas_w - ref_w
     b_w = res_w.mean(axis=0)
