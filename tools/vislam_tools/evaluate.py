@@ -98,7 +98,9 @@ sensors).
 
 Against ground truth this is a calibration of the velocity sensor. Against vislam's own trajectory
 it says what the images ask of the velocities (a lever arm or offsets the vision disagrees with).
-A value is printed as significant when it lies over 3 of its standard errors from 0.
+A value is printed as significant when it lies over 3 of its standard errors from 0. The standard
+errors take the intervals' errors as independent: a reference whose errors are correlated in time
+(a filter's) makes them too small.
 
 Example (0027, KITTI ground truth):
   evaluate gt --gt ../shared/data/gt/kitti_odometry_07.txt --calib ../shared/data/0027.npz --out gt.tum
