@@ -63,15 +63,6 @@ static void advance(vl_estimator_t *e, int64_t utime, double tau, const double x
     vl_predict_defer(e, Gp, noise_var, offset_var);
 }
 
-/* The configured velocity sensor position (body frame) in p, or NULL when it is the body origin. */
-static const double *velocity_sensor(const vl_estimator_t *e, double p[3])
-{
-    p[0] = e->cfg.velocity_sensor_x;
-    p[1] = e->cfg.velocity_sensor_y;
-    p[2] = e->cfg.velocity_sensor_z;
-    return (p[0] != 0.0 || p[1] != 0.0 || p[2] != 0.0) ? p : NULL;
-}
-
 /*
  * Moves the state to utime with the velocity u = (lin, ang) over the interval,
  * less the estimated offsets. noise_share scales the input noise: the variance
@@ -112,8 +103,8 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
 
 int vl_predict_sensor_skew(const vl_estimator_t *e, double skew[9])
 {
-    double p[3];
-    if (velocity_sensor(e, p) == NULL) {
+    const double p[3] = {e->cfg.velocity_sensor_x, e->cfg.velocity_sensor_y, e->cfg.velocity_sensor_z};
+    if (p[0] == 0.0 && p[1] == 0.0 && p[2] == 0.0) {
         return 0;
     }
     vl_skew(p, skew);

@@ -17,7 +17,7 @@ import sys
 import numpy as np
 
 from . import ToolError, cli
-from .geometry import se3_inv, se3_log
+from .geometry import body_twists
 from .trajio import load_npz, read_kitti
 
 # The noise of the given velocities against the clean recordings (the data README's figures).
@@ -114,9 +114,7 @@ def clean_velocities(time_stamps, w_T_cam, cam_T_imu):
     tau = np.diff(ts)
     if np.any(tau <= 0):
         raise ToolError("time_stamps are not strictly increasing")
-    w_T_imu = w_T_cam @ np.asarray(cam_T_imu, dtype=float)
-    rel = se3_inv(w_T_imu[:-1]) @ w_T_imu[1:]
-    twists = np.array([se3_log(r) for r in rel]) / tau[:, None]  # (N-1, 6)
+    twists = body_twists(ts, w_T_cam @ np.asarray(cam_T_imu, dtype=float))  # (N-1, 6)
     twists = np.vstack([twists, twists[-1:]])
     return twists[:, :3].T.copy(), twists[:, 3:].T.copy()
 

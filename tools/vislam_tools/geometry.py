@@ -156,6 +156,15 @@ def quat_xyzw_to_wxyz(q):
     return np.concatenate([q[..., 3:4], q[..., 0:3]], axis=-1)
 
 
+def body_twists(times, poses):
+    """The body twist [v, w] (N-1, 6) that moves each of N world-from-body poses to the next over its
+    interval: log(T_i^-1 T_i+1) / (t_i+1 - t_i), the motion model's constant velocity (the inverse of
+    integrate_dead_reckoning's step)."""
+    poses = np.asarray(poses, dtype=float)
+    rel = se3_inv(poses[:-1]) @ poses[1:]
+    return np.array([se3_log(r) for r in rel]) / np.diff(np.asarray(times, dtype=float))[:, None]
+
+
 def integrate_dead_reckoning(time_stamps, linear_velocity, rotational_velocity):
     """Seed motion model: w_T_i(t+1) = w_T_i(t) exp(tau_t hat(u_t)), w_T_i(0) = I.
 

@@ -14,7 +14,7 @@ from evo.core import sync as evo_sync
 from evo.core.trajectory import PosePath3D
 
 from . import ToolError
-from .geometry import hat3, make_pose, se3_inv, se3_log
+from .geometry import body_twists, hat3, make_pose
 
 
 def associate(est_times, gt_times, mode="auto", max_dt=0.02):
@@ -287,27 +287,20 @@ def velocity_calibration(ref_times, ref_poses, sample_times, lin, ang, held=Fals
 
     Returns a dict, or raises ToolError when fewer than 20 intervals pair with samples.
     """
-    sample_times = np.asarray(sample_times, dtype=float)
     lin, ang = np.asarray(lin, dtype=float), np.asarray(ang, dtype=float)
-    idx = np.clip(np.searchsorted(sample_times, ref_times), 1, len(sample_times) - 1)
-    nearest = np.where(np.abs(sample_times[idx - 1] - ref_times) <= np.abs(sample_times[idx] - ref_times), idx - 1, idx)
-    paired = np.abs(sample_times[nearest] - ref_times) <= max_dt
-    meas_v, meas_w, ref_v, ref_w = [], [], [], []
-    for i in range(len(ref_times) - 1):
-        dt = ref_times[i + 1] - ref_times[i]
-        if not (paired[i] and paired[i + 1] and dt > 0.0):
-            continue
-        u = se3_log(se3_inv(ref_poses[i]) @ ref_poses[i + 1]) / dt
-        a, b = nearest[i], nearest[i + 1]
-        meas_v.append(lin[a] if held else 0.5 * (lin[a] + lin[b]))
-        meas_w.append(ang[a] if held else 0.5 * (ang[a] + ang[b]))
-        ref_v.append(u[:3])
-        ref_w.append(u[3:])
-    n = len(ref_v)
+    ref_idx, sample_idx, _ = associate(ref_times, sample_times, "time", max_dt)
+    sample_of = dict(zip(ref_idx.tolist(), sample_idx.tolist()))
+    intervals = [i for i in range(len(ref_times) - 1) if i in sample_of and i + 1 in sample_of]
+    n = len(intervals)
     if n < 20:
         raise ToolError(f"velocities: {n} intervals pair the trajectory with velocity samples (20 needed; "
                         f"is the trajectory of the same drive, and --max-dt {max_dt} s wide enough?)")
-    meas_v, meas_w, ref_v, ref_w = map(np.array, (meas_v, meas_w, ref_v, ref_w))
+    first = np.array([sample_of[i] for i in intervals])
+    last = np.array([sample_of[i + 1] for i in intervals])
+    meas_v = lin[first] if held else 0.5 * (lin[first] + lin[last])
+    meas_w = ang[first] if held else 0.5 * (ang[first] + ang[last])
+    twists = body_twists(ref_times, ref_poses)[intervals]
+    ref_v, ref_w = twists[:, :3], twists[:, 3:]
     A = np.zeros((3 * n, 6))
     for k in range(n):
         A[3 * k:3 * k + 3, :3] = hat3(ref_w[k])  # w x p
