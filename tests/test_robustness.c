@@ -496,6 +496,81 @@ void test_a_moving_track_among_three_breaks_at_its_second_contradiction(void)
     TEST_ASSERT_EQUAL_UINT64(2u, broken[2]); /* its restart moves on: broken again */
 }
 
+/* Whether the window holds a landmark of track id. */
+static int window_holds(const vl_estimator_t *e, int32_t id)
+{
+    static vl_landmark_t lm[VL_MAX_LANDMARKS];
+    size_t n = 0;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_landmarks(e, lm, VL_MAX_LANDMARKS, &n));
+    for (size_t i = 0; i < n; ++i) {
+        if (lm[i].id == id) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/*
+ * A track that drifts against the velocities' motion by about one std of a frame's expected
+ * motion error (4 px a frame sideways, as a far car across the view) never contradicts one
+ * frame, but its summed two-view residuals do: it breaks, not before its third frame, and while
+ * its id lasts it is neither used nor admitted again. Standing tracks on the same frames, and
+ * on 200 frames of their own, never break.
+ */
+void test_a_track_drifting_against_the_velocities_breaks_and_stays_out(void)
+{
+    vl_config_t cfg;
+    vl_test_kitti_config(&cfg);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    static vl_stereo_frame_t f;
+    const int start = 20, frames = 60;
+    int broke_at = -1;
+    for (int k = 0; k < start + frames; ++k) {
+        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        make_frame(&cfg, &f, T0 + k * STEP);
+        f.count = 3;
+        for (uint32_t i = 0; i < f.count; ++i) {
+            f.obs[i].v_right += ((i + (uint32_t)k) % 2u) ? 0.3 : -0.3; /* the rows' white noise */
+        }
+        if (k >= start) {
+            f.obs[1].u_left += 4.0 * (double)(k - start + 1);
+            f.obs[1].u_right += 4.0 * (double)(k - start + 1);
+        }
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
+        const uint64_t broken = vl_get_counters(&est)->tracks_inconsistent;
+        if (k < start) {
+            TEST_ASSERT_EQUAL_UINT64(0u, broken); /* standing tracks */
+        } else if (broke_at < 0 && broken > 0u) {
+            broke_at = k - start;
+            TEST_ASSERT_EQUAL_UINT64(1u, broken);
+        }
+        if (broke_at >= 0) {
+            TEST_ASSERT_FALSE(window_holds(&est, f.obs[1].id)); /* not admitted again */
+            TEST_ASSERT_TRUE(window_holds(&est, f.obs[0].id) && window_holds(&est, f.obs[2].id));
+        } else if (k >= 1) {
+            TEST_ASSERT_TRUE(window_holds(&est, f.obs[1].id)); /* used until then */
+        }
+    }
+    TEST_ASSERT_TRUE(broke_at >= 2);                                          /* its third frame at the earliest */
+    TEST_ASSERT_TRUE(broke_at < frames);                                      /* and within the drive */
+    TEST_ASSERT_EQUAL_UINT64(1u, vl_get_counters(&est)->tracks_inconsistent); /* once: then ignored */
+
+    /* Standing tracks alone, 200 sparse frames: none breaks. */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
+    for (int k = 0; k < 200; ++k) {
+        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+        make_frame(&cfg, &f, T0 + k * STEP);
+        f.count = 5;
+        for (uint32_t i = 0; i < f.count; ++i) {
+            f.obs[i].v_right += ((i + (uint32_t)k) % 2u) ? 0.3 : -0.3;
+        }
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
+    }
+    TEST_ASSERT_EQUAL_UINT64(0u, vl_get_counters(&est)->tracks_inconsistent);
+}
+
 /* ------------------------------------------------------------ divergence */
 
 void test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_calibration(void)
@@ -834,6 +909,7 @@ int main(void)
     RUN_TEST(test_pixels_outside_the_image_and_absurd_disparity_are_refused);
     RUN_TEST(test_a_sparse_frames_bad_tracks_neither_poison_the_noise_nor_stay);
     RUN_TEST(test_a_moving_track_among_three_breaks_at_its_second_contradiction);
+    RUN_TEST(test_a_track_drifting_against_the_velocities_breaks_and_stays_out);
     RUN_TEST(test_non_finite_covariance_from_a_pathological_input_resets_keeping_the_calibration);
     RUN_TEST(test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged);
     RUN_TEST(test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed_out);

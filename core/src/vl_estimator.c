@@ -474,6 +474,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     memset(e->work_moved, 0, count);
     uint8_t contradicted[VL_MAX_FRAME_FEATURES];
     memset(contradicted, 0, count);
+    vl_noise_carry_drift(e, frame, count);
     if (e->cfg.adaptive_noise && e->cfg.mode == VL_MODE_SLAM) {
         vl_noise_observe_stereo_rows(e, frame, count);
         if (had_frame && !repeated && !e->prev_frame_repeated && !e->unknown_motion) {
@@ -486,6 +487,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     e->num_prev_obs = count;
     memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
     memcpy(e->prev_contradicted, contradicted, count);
+    vl_noise_keep_drift(e);
     const double frame_dt = e->have_frame ? (double)vl_utime_diff(frame->utime, e->last_frame_utime) * 1e-6 : 0.0;
     e->last_frame_utime = frame->utime;
     e->have_frame = 1;

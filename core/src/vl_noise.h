@@ -90,6 +90,19 @@ void vl_noise_observe_stereo_rows(vl_estimator_t *e, const vl_stereo_frame_t *fr
 int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count,
                                      uint8_t *contradicted);
 
+/**
+ * Starts a sparse frame's drift sums (e->work_drift) empty, except that a track the previous
+ * frame found moving on its own stays so (e->work_moved): its observations are neither used nor
+ * admitted while its id lasts. After the frame, vl_noise_keep_drift hands them to the next one.
+ */
+void vl_noise_carry_drift(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count);
+
+/** Keeps the frame's drift sums for the next frame (none after a dense frame). */
+void vl_noise_keep_drift(vl_estimator_t *e);
+
+/** Nonzero when the frame's observation obs is on a track found moving on its own (not to admit). */
+int vl_noise_track_moving(const vl_estimator_t *e, uint32_t obs);
+
 /* Shared by the adaptation rules. */
 
 /** A variance kept within VL_NOISE_ADAPT_RANGE of its configured std, either way. */

@@ -15,6 +15,7 @@
 #include "vl_noise.h"
 
 #include <math.h>
+#include <string.h>
 
 #include "vl_camera.h"
 #include "vl_estimator_internal.h"
@@ -36,6 +37,17 @@
 /* Step of the velocity noise in log-variance per frame, weighted by the noise's share of the
  * expected spread: the dense frames' step (VL_VELOCITY_NOISE_GAIN in vl_noise.c). */
 #define VL_TWO_VIEW_GAIN 0.05
+/* A track's clipped two-view residuals summed against their summed covariance: each row clipped
+ * at this many of its stds (a track's one jump counts as one std, a drift of one std a frame
+ * accumulates), the frames from which the sum counts, and the chi-square with 3 degrees of freedom
+ * (99.9 %) over which the track moves on its own. Clipped, a standing track's sum spreads less
+ * than the summed covariance, so the test errs towards keeping it; looser clips and thresholds
+ * gained more on the simulator's moving points and lost on the real drives (README, Accuracy). */
+#define VL_DRIFT_CLIP 1.0
+#define VL_DRIFT_MIN_FRAMES 3u
+#define VL_DRIFT_CHI2 16.27
+/* C99 has no _Static_assert: a negative array size stops the build instead. */
+typedef char vl_assert_drift_tracks[(VL_NOISE_DENSE_FRAME <= VL_DRIFT_TRACKS) ? 1 : -1];
 /* The moment estimate of each velocity variance over the two-view frames: the frames it forgets
  * over, the frames it needs before it counts, and the factor (in variance) by which it must lie
  * over the variance in use to replace it. Its neighbours (100 and 1,000 frames, 30 frames, 3x and
@@ -174,6 +186,8 @@ typedef struct {
     double rr;       /* r^T W^-1 r */
     double Hr[21];   /* [H | r] whitened by W, 3 x 7 */
     double chi2;     /* r^T (W + H Q H^T)^-1 r, Q the motion error the filter expects */
+    double r[3];     /* y - h(predicted motion, previous triangulation), px */
+    double S[9];     /* W + H Q H^T, px^2 */
 } vl_two_view_track_t;
 
 /* Index of (i, j), i <= j, in a 6x6 upper triangle stored by rows. */
@@ -224,6 +238,8 @@ static int track_terms(const vl_estimator_t *e, const double nv[3], const double
         S[i] += W[i];
     }
     t->chi2 = vl_mahalanobis3(S, r);
+    memcpy(t->r, r, sizeof(t->r));
+    memcpy(t->S, S, sizeof(t->S));
     if (cholesky(W, 3, L) != 0) {
         return -1;
     }
@@ -414,6 +430,64 @@ static void flag_moved(vl_estimator_t *e, const vl_two_view_track_t *tracks, con
     }
 }
 
+/*
+ * A track moving on its own can agree with each frame's expected motion within its spread while
+ * it drifts against it frame after frame (a far car is a compass that turns: 3 m/s across at 50 m
+ * is about one std of a frame's expected motion), and on a sparse frame it may be a third of what
+ * corrects the pose. Its two-view residuals, each against the velocities' motion from the previous
+ * frame (which the update does not move), are independent errors for a standing point and share
+ * the drift's sign for a moving one.
+ */
+static void drift_step(const vl_two_view_track_t *t, const vl_track_drift_t *prev, vl_track_drift_t *d, uint8_t *moved)
+{
+    if (d->moving) {
+        return;
+    }
+    *d = *prev;
+    for (int i = 0; i < 3; ++i) {
+        const double c = VL_DRIFT_CLIP * sqrt(t->S[4 * i]);
+        d->residual[i] += fmax(-c, fmin(c, t->r[i]));
+    }
+    for (int i = 0; i < 9; ++i) {
+        d->covariance[i] += t->S[i];
+    }
+    d->frames++;
+    if (d->frames >= VL_DRIFT_MIN_FRAMES && !(vl_mahalanobis3(d->covariance, d->residual) <= VL_DRIFT_CHI2)) {
+        memset(d, 0, sizeof(*d));
+        d->moving = 1;
+        *moved = 1;
+    }
+}
+
+void vl_noise_carry_drift(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count)
+{
+    /* A dense frame's RANSAC judges its tracks; the sums start again after it. */
+    e->num_work_drift = count < VL_NOISE_DENSE_FRAME ? count : 0u;
+    memset(e->work_drift, 0, e->num_work_drift * sizeof(e->work_drift[0]));
+    if (e->num_work_drift == 0u || e->num_prev_drift == 0u) {
+        return; /* nothing to carry from a dense frame */
+    }
+    vl_work_drift_carry(e, e->num_work_drift, e->num_prev_obs);
+    for (uint32_t i = 0; i < e->num_work_drift; ++i) {
+        const int j = previous_observation(e, frame->obs[i].id);
+        if (j >= 0 && (uint32_t)j < e->num_prev_drift && e->prev_drift[j].moving) {
+            e->work_drift[i].moving = 1;
+            e->work_moved[i] = 1;
+        }
+    }
+}
+
+void vl_noise_keep_drift(vl_estimator_t *e)
+{
+    e->num_prev_drift = e->num_work_drift;
+    memcpy(e->prev_drift, e->work_drift, e->num_prev_drift * sizeof(e->work_drift[0]));
+}
+
+int vl_noise_track_moving(const vl_estimator_t *e, uint32_t obs)
+{
+    return obs < e->num_work_drift && e->work_drift[obs].moving;
+}
+
 /* The 99 % quantile of chi-square with k >= 1 degrees of freedom (Wilson and Hilferty's cube:
  * within 2 % of the exact value from k = 3 on; at k = 1 and 2 the exact 6.63 and 9.21). */
 static double chi2_quantile_99(uint32_t k)
@@ -475,6 +549,7 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
     double nv[3], q[6];
     vl_stereo_noise_var(e->stereo_row_var, nv);
     expected_motion_error(e, q);
+    static const vl_track_drift_t none = {{0.0}, {0.0}, 0u, 0u}; /* a track the previous frame did not sum */
     vl_two_view_track_t tracks[VL_NOISE_DENSE_FRAME];
     uint32_t obs[VL_NOISE_DENSE_FRAME], prev_index[VL_NOISE_DENSE_FRAME];
     uint32_t n = 0, contradicting = 0;
@@ -489,6 +564,8 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
         }
         if (track_terms(e, nv, q, &e->prev_obs[j], now, &tracks[n]) == 0) {
             contradicting += !(tracks[n].chi2 <= e->cfg.gate_chi2);
+            drift_step(&tracks[n], (uint32_t)j < e->num_prev_drift ? &e->prev_drift[j] : &none, &e->work_drift[i],
+                       &e->work_moved[i]);
             prev_index[n] = (uint32_t)j;
             obs[n++] = i;
         }

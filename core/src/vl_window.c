@@ -15,6 +15,7 @@
 #include "vl_estimator_internal.h"
 #include "vl_guard.h"
 #include "vl_linalg.h"
+#include "vl_noise.h"
 #include "vl_predict.h"
 #include "vl_se3.h"
 #include "vl_stereo.h"
@@ -450,7 +451,7 @@ uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, u
             t->frames_seen = 1;
         }
         pending_triangulate(e, y, t);
-        if (t->frames_seen >= min_track_length) {
+        if (t->frames_seen >= min_track_length && !vl_noise_track_moving(e, i)) {
             add_candidate(candidates, i, admission_score(disparity, t->frames_seen));
         }
     }
@@ -489,7 +490,7 @@ void vl_window_admit(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_candi
     for (uint32_t b = 0; b < e->num_broken; ++b) {
         const vl_stereo_obs_t *o = &frame->obs[e->work_broken[b]];
         const double disparity = o->u_left - o->u_right;
-        if (disparity_admissible(e, disparity)) {
+        if (disparity_admissible(e, disparity) && !vl_noise_track_moving(e, e->work_broken[b])) {
             add_candidate(c, e->work_broken[b], disparity);
         }
     }

@@ -31,6 +31,8 @@
 #define VL_WORK_TWO_VIEW_PAIR 700u
 #define VL_WORK_TWO_VIEW_FIT 900u
 #define VL_WORK_TWO_VIEW_SUM 54u
+/* A track's drift sums: three clipped rows, nine covariance terms and a 3x3 Mahalanobis test. */
+#define VL_WORK_DRIFT 60u
 
 static void add(vl_estimator_t *e, uint64_t *stage, uint64_t flops)
 {
@@ -147,7 +149,13 @@ void vl_work_two_view(vl_estimator_t *e, uint32_t count, uint32_t previous, uint
     /* The id lookup compares each observation with the previous frame's: one operation each. Then
      * the tracks, one fit without each (leave-one-out) and the fit of all. */
     const uint64_t fit = VL_WORK_TWO_VIEW_FIT + (uint64_t)pairs * VL_WORK_TWO_VIEW_SUM;
-    add(e, &e->work.update, (uint64_t)count * previous + (uint64_t)pairs * (VL_WORK_TWO_VIEW_PAIR + fit) + fit);
+    add(e, &e->work.update,
+        (uint64_t)count * previous + (uint64_t)pairs * (VL_WORK_TWO_VIEW_PAIR + VL_WORK_DRIFT + fit) + fit);
+}
+
+void vl_work_drift_carry(vl_estimator_t *e, uint32_t count, uint32_t previous)
+{
+    add(e, &e->work.update, (uint64_t)count * previous); /* the id lookup, as the two views' */
 }
 
 void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued)

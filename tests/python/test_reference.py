@@ -175,6 +175,39 @@ def test_reference_agrees_on_moving_tracks(build_dir, tmp_path, monkeypatch):
     assert compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)]) == 1
 
 
+@pytest.mark.parametrize("seed,steps", [(2, 200)])
+def test_reference_agrees_on_tracks_drifting_against_the_velocities(build_dir, tmp_path, monkeypatch, seed, steps):
+    """The same kind of drive: a track whose summed two-view residuals drift against the velocities'
+    motion is broken and then neither used nor admitted while its id lasts, in the reference too, and
+    that matters here (a reference whose drift sums never flag a track moves the poses)."""
+    from reference import compare as compare_tool
+    from reference import vl_reference
+    log = tmp_path / "drifting.lcmlog"
+    subprocess.run([str(build_dir / "bin" / "vislam-sim"), "--realistic", "--max-observations", "5", "--steps",
+                    str(steps), "--seed", str(seed), "--moving-fraction", "0.2", "--out", str(log), "--truth",
+                    str(tmp_path / "truth.tum")], check=True, capture_output=True)
+    rc, fig = compare(build_dir, tmp_path, log=log)
+    assert fig["agreement"]["frames_compared"] == steps
+    assert rc == 0
+    flagged = []
+    step = vl_reference.Filter.drift_step
+
+    def counted(self, i, j, r, S):
+        before = i in self.moved
+        step(self, i, j, r, S)
+        flagged.append(i in self.moved and not before)
+
+    monkeypatch.setattr(vl_reference.Filter, "drift_step", counted)
+    assert compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)]) == 0
+    assert any(flagged)  # the rule fired on this drive
+
+    def never(self, i, j, r, S):
+        self.drift[i] = [np.zeros(3), np.zeros((3, 3)), 0, False]
+
+    monkeypatch.setattr(vl_reference.Filter, "drift_step", never)
+    assert compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)]) == 1
+
+
 def test_reference_agrees_with_a_velocity_sensor_lever_arm(build_dir, tmp_path):
     """The velocity samples taken as those of a point away from the body origin (velocity_sensor_*):
     the reference takes the same turn rate times lever arm out of them and carries the angular noise

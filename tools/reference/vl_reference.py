@@ -62,6 +62,9 @@ WIDEN_RANGE = 20.0          # the widening stops at this factor of the configure
 TWO_VIEW_MOMENT_MEMORY = 300.0  # two-view frames the velocity variances' moment estimate forgets over
 TWO_VIEW_MOMENT_MIN_FRAMES = 10.0  # frames it needs before it counts
 TWO_VIEW_MOMENT_RISE = 4.0  # it replaces a variance it lies over by this factor (upwards only)
+DRIFT_CLIP = 1.0            # a track's two-view residual rows clipped at this many of their stds before summing
+DRIFT_MIN_FRAMES = 3        # frames from which a track's drift sum counts
+DRIFT_CHI2 = 16.27          # chi-square (3 dof, 99.9 %) of the sum over which the track moves on its own
 REOPEN_RATIO = 4.0          # angular variance over its configured value from which the angular offsets reopen
 SERIES_ANGLE = 1.0           # below this angle (rad) the Lie-group coefficients come from series
 SERIES_TERMS = 14
@@ -384,6 +387,8 @@ class Filter:
         self.moment_frames = [0.0, 0.0]
         self.moved = set()          # this frame's observations whose track contradicted its fellows' motion
         self.contradicted = set()   # the previous frame's observations whose track alone contradicted q
+        self.drift = {}             # a sparse frame's observation -> [sum of clipped r, sum of S, frames, moving]
+        self.prev_drift = {}        # the previous frame's, when it was sparse
         self.state_utime = None  # us; None until the first IMU sample
         self.last_imu_utime = None
         self.held_v = self.held_w = None
@@ -531,11 +536,14 @@ class Filter:
         self.velocity_matched = False
         self.moved = set()
         contradicted = set()
+        carried_moving = self.carry_drift(frame)
         if self.cfg["adaptive_noise"] and self.cfg["mode"] == "slam":
             self.observe_stereo_rows(frame)
             if had_frame and not repeated and not self.prev_repeated:
                 self.velocity_matched = self.adapt_velocity_two_view(frame, contradicted)
+        self.moved |= carried_moving
         self.contradicted = contradicted
+        self.prev_drift = self.drift
         self.step_t2 = self.step_t = 0.0
         self.prev_repeated = repeated
         self.prev_frame = frame
@@ -692,7 +700,7 @@ class Filter:
                 t.frames_seen = 1
             t.point, J = self.triangulate_world(y)
             t.cov = J @ np.diag(stereo_noise(self.var_px)) @ J.T
-            if t.frames_seen >= min_track_length and len(candidates) < MAX_FRAME_FEATURES:
+            if t.frames_seen >= min_track_length and len(candidates) < MAX_FRAME_FEATURES and not self._moving(i):
                 age = min(t.frames_seen - 1, AGE_CAP)
                 candidates.append((i, disparity * (1.0 + AGE_BONUS * age)))
         return rows, candidates
@@ -973,6 +981,35 @@ class Filter:
         """Valid, plausible, and with the disparity a landmark needs."""
         return _valid(o) and self._plausible(o) and o[1] - o[3] >= self.cfg["min_disparity"]
 
+    def carry_drift(self, frame):
+        """A sparse frame's drift sums start empty, but a track the previous (sparse) frame found
+        moving on its own stays so: the observations returned are neither used nor admitted."""
+        self.drift = {}
+        if len(frame) >= VELOCITY_DENSE_FRAME or not self.prev_drift:
+            return set()
+        moving = set()
+        for i, o in enumerate(frame):
+            j = next((j for j, x in enumerate(self.prev_frame) if x[0] == o[0]), None)
+            if j is not None and j in self.prev_drift and self.prev_drift[j][3]:
+                self.drift[i] = [np.zeros(3), np.zeros((3, 3)), 0, True]
+                moving.add(i)
+        return moving
+
+    def drift_step(self, i, j, r, S):
+        """A track's two-view residual r (rows clipped at DRIFT_CLIP of their stds) and its expected
+        covariance S added to the sums the previous frame held for it; from DRIFT_MIN_FRAMES on, a
+        sum over DRIFT_CHI2 is a track moving on its own (self.moved), and stays so."""
+        if i in self.drift and self.drift[i][3]:
+            return
+        prev = self.prev_drift.get(j)
+        c = DRIFT_CLIP * np.sqrt(np.diag(S))
+        d = [(prev[0] if prev else 0.0) + np.clip(r, -c, c), (prev[1] if prev else 0.0) + S,
+             (prev[2] if prev else 0) + 1, False]
+        if d[2] >= DRIFT_MIN_FRAMES and not mahalanobis3(d[1], d[0]) <= DRIFT_CHI2:
+            d = [np.zeros(3), np.zeros((3, 3)), 0, True]
+            self.moved.add(i)
+        self.drift[i] = d
+
     def _moved_against_the_others(self, terms, kept):
         """The observations whose track's residual against the motion the other kept tracks fit (at
         its white noise plus that fit's covariance) is beyond the gate; none when half or more are."""
@@ -1042,13 +1079,14 @@ class Filter:
             A = dy_db @ self.R.T @ dpw_dy
             W = A @ np.diag(nv) @ A.T + np.diag(nv)
             r = compress(o) - y_pred
-            chi2 = mahalanobis3(W + H @ np.diag(q) @ H.T, r)
+            S = W + H @ np.diag(q) @ H.T
+            chi2 = mahalanobis3(S, r)
             try:
                 L = np.linalg.cholesky(W)
             except np.linalg.LinAlgError:
                 continue
             Hw, rw = np.linalg.solve(L, H), np.linalg.solve(L, r)
-            terms.append((Hw.T @ Hw, Hw.T @ rw, float(rw @ rw), chi2, i, Hw, rw, j))
+            terms.append((Hw.T @ Hw, Hw.T @ rw, float(rw @ rw), chi2, i, Hw, rw, j, r, S))
         contradicting = sum(not t[3] <= self.cfg["gate_chi2"] for t in terms)
         drop = 2 * contradicting < len(terms) and self.cfg["gate_chi2"] > 0.0
         out = [drop and not t[3] <= self.cfg["gate_chi2"] for t in terms]
@@ -1058,6 +1096,8 @@ class Filter:
         contradicted.update(t[4] for t in left_out)
         self.moved = self._moved_against_the_others(terms, kept)
         self.moved.update(t[4] for t in left_out if t[7] in self.contradicted)
+        for t in terms:
+            self.drift_step(t[4], t[7], t[8], t[9])
         if len(kept) < TWO_VIEW_MIN_PAIRS:
             return False
         info = sum(t[0] for t in kept)
@@ -1194,12 +1234,16 @@ class Filter:
                 if slot.unseen_frames > self.cfg["max_unseen_frames"]:
                     self.marginalize(s)
 
+    def _moving(self, i):
+        """The frame's observation i is on a track found moving on its own (not to admit)."""
+        return i in self.drift and self.drift[i][3]
+
     def admit(self, frame, candidates):
         """Candidates (and restarts of broken tracks, by disparity) best first; when the window is
         full, room only by evicting a landmark not observed now (the longest unseen)."""
         for i in self.broken_obs:
             disparity = frame[i][1] - frame[i][3]
-            if self._admissible(disparity) and len(candidates) < MAX_FRAME_FEATURES:
+            if self._admissible(disparity) and len(candidates) < MAX_FRAME_FEATURES and not self._moving(i):
                 candidates.append((i, disparity))
         candidates = sorted(candidates, key=lambda c: -c[1])  # stable, as the C insertion sort
         for i, _ in candidates:

@@ -253,7 +253,8 @@ typedef struct {
     X(uint64_t, landmarks_deferred, "admissions postponed: the window was full, or max_admissions reached")         \
     X(uint64_t, tracks_inconsistent,                                                                                \
       "observations that disagreed with their track's previous one (candidates; on sparse frames, window tracks "   \
-      "against the motion the others agree on, and first-sight landmarks at their second sight)")                   \
+      "against the motion the others agree on or drifting against the velocities', and first-sight landmarks at "   \
+      "their second sight)")                                                                                        \
     X(uint64_t, frames_reassociated, "frames whose tracked observations were all distrusted")                       \
     X(uint64_t, frames_repeated, "frames repeating the previous frame's pixels exactly (a stale image)")            \
     X(uint64_t, tracks_broken, "window landmarks whose observation contradicted them: mapped, id restarted")        \
@@ -326,6 +327,18 @@ typedef struct {
     int64_t first_utime;
     int64_t last_utime;
 } vl_landmark_slot_t;
+
+/** Tracks of a sparse frame whose two-view drift is summed (vl_noise_two_view.c: its sparse frames
+ *  have fewer observations than this). */
+#define VL_DRIFT_TRACKS 16u
+
+/** One track's two-view residuals summed over the sparse frames in a row that matched it (internal). */
+typedef struct {
+    double residual[3];   /**< px, sum of y - h(the velocities' motion since the previous frame), each row clipped */
+    double covariance[9]; /**< px^2, sum of their expected covariances */
+    uint32_t frames;      /**< frames in the sums */
+    uint8_t moving;       /**< 1: the sums showed the track moving on its own: neither used nor admitted */
+} vl_track_drift_t;
 
 /** A candidate track not yet in the window: its age orders admissions. */
 typedef struct {
@@ -450,6 +463,9 @@ typedef struct {
     /** prev_obs whose track alone contradicted the expected motion on its two views (a sparse frame's
         minority; vl_noise_two_view.c): a second contradiction in a row breaks the track. */
     uint8_t prev_contradicted[VL_MAX_FRAME_FEATURES];
+    /** prev_obs's tracks' drift sums, when that frame was sparse (num_prev_drift of them, else none). */
+    uint32_t num_prev_drift;
+    vl_track_drift_t prev_drift[VL_DRIFT_TRACKS];
 
     /** Prediction steps applied to P's core block only (vl_predict_settle applies them to the rest). */
     vl_deferred_prediction_t deferred;
@@ -471,8 +487,11 @@ typedef struct {
     uint8_t work_support[VL_MAX_LANDMARKS];
     uint32_t work_broken[VL_MAX_LANDMARKS];
     uint32_t num_broken;
-    uint8_t work_moved[VL_MAX_FRAME_FEATURES]; /**< the frame's observations whose track contradicted the
-                                                    motion its fellows agree on (two-view matching) */
+    uint8_t work_moved[VL_MAX_FRAME_FEATURES];    /**< the frame's observations whose track contradicted the
+                                                    motion its fellows agree on, or drifted against the
+                                                    velocities' (two-view matching) */
+    uint32_t num_work_drift;                      /**< the frame's observations when it is sparse, else 0 */
+    vl_track_drift_t work_drift[VL_DRIFT_TRACKS]; /**< a sparse frame's tracks' drift sums */
 } vl_estimator_t;
 
 /** Fills the tuned default configuration (measured best on 0027; see README). */
