@@ -10,7 +10,9 @@
  * the adapted pixel noise enters it (on a sparse frame the correction cannot
  * tell those from the velocity noise, README, Accuracy): the residuals are
  * weighed with the stereo rows' own white noise, the spread of
- * v_left - v_right, which no state error enters.
+ * v_left - v_right, which no state error enters. The same residuals, summed
+ * per track over consecutive sparse frames, show a track drifting against the
+ * velocities' motion: a moving object the single frames let through.
  */
 #include "vl_noise.h"
 
