@@ -416,6 +416,22 @@ void test_pixels_outside_the_image_and_absurd_disparity_are_refused(void)
 }
 
 /*
+ * Step k of a standing vehicle on a sparse frame: the IMU sample, then the first count tracks
+ * ahead in f, their stereo rows disagreeing by the white noise of +-0.3 px (so that no frame
+ * repeats the one before it).
+ */
+static void sparse_step(const vl_config_t *cfg, vl_stereo_frame_t *f, int k, uint32_t count)
+{
+    const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    make_frame(cfg, f, T0 + k * STEP);
+    f->count = count;
+    for (uint32_t i = 0; i < count; ++i) {
+        f->obs[i].v_right += ((i + (uint32_t)k) % 2u) ? 0.3 : -0.3;
+    }
+}
+
+/*
  * On a sparse frame the two-view velocity noise matching reads every track. A
  * track whose pixels jump 40 px and one whose stereo rows disagree by 30 px
  * neither poison the noise (the stereo rows' estimate moves by a capped share,
@@ -430,13 +446,7 @@ void test_a_sparse_frames_bad_tracks_neither_poison_the_noise_nor_stay(void)
     double rows_before = 0.0;
     uint64_t broken_before = 0;
     for (int k = 0; k < 12; ++k) {
-        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
-        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
-        make_frame(&cfg, &f, T0 + k * STEP);
-        f.count = 8; /* sparse: under VL_NOISE_DENSE_FRAME */
-        for (uint32_t i = 0; i < f.count; ++i) {
-            f.obs[i].v_right += ((i + (uint32_t)k) % 2u) ? 0.3 : -0.3; /* the rows' white noise */
-        }
+        sparse_step(&cfg, &f, k, 8u); /* sparse: under VL_NOISE_DENSE_FRAME */
         if (k == 11) {
             f.obs[2].u_left += 40.0;
             f.obs[2].u_right += 40.0;
@@ -475,13 +485,7 @@ void test_a_moving_track_among_three_breaks_at_its_second_contradiction(void)
     static vl_stereo_frame_t f;
     uint64_t broken[3] = {0, 0, 0};
     for (int k = 0; k < 23; ++k) {
-        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
-        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
-        make_frame(&cfg, &f, T0 + k * STEP);
-        f.count = 3;
-        for (uint32_t i = 0; i < f.count; ++i) {
-            f.obs[i].v_right += ((i + (uint32_t)k) % 2u) ? 0.3 : -0.3; /* the rows' white noise */
-        }
+        sparse_step(&cfg, &f, k, 3u);
         if (k >= 20) { /* track 1 moves sideways, 16 px a frame: over the two-view gate, under the update's */
             f.obs[1].u_left += 16.0 * (double)(k - 19);
             f.obs[1].u_right += 16.0 * (double)(k - 19);
@@ -526,13 +530,7 @@ void test_a_track_drifting_against_the_velocities_breaks_and_stays_out(void)
     const int start = 20, frames = 60;
     int broke_at = -1;
     for (int k = 0; k < start + frames; ++k) {
-        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
-        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
-        make_frame(&cfg, &f, T0 + k * STEP);
-        f.count = 3;
-        for (uint32_t i = 0; i < f.count; ++i) {
-            f.obs[i].v_right += ((i + (uint32_t)k) % 2u) ? 0.3 : -0.3; /* the rows' white noise */
-        }
+        sparse_step(&cfg, &f, k, 3u);
         if (k >= start) {
             f.obs[1].u_left += 4.0 * (double)(k - start + 1);
             f.obs[1].u_right += 4.0 * (double)(k - start + 1);
@@ -559,13 +557,7 @@ void test_a_track_drifting_against_the_velocities_breaks_and_stays_out(void)
     /* Standing tracks alone, 200 sparse frames: none breaks. */
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     for (int k = 0; k < 200; ++k) {
-        const vl_imu_sample_t s = imu_at(T0 + k * STEP, 0.0);
-        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
-        make_frame(&cfg, &f, T0 + k * STEP);
-        f.count = 5;
-        for (uint32_t i = 0; i < f.count; ++i) {
-            f.obs[i].v_right += ((i + (uint32_t)k) % 2u) ? 0.3 : -0.3;
-        }
+        sparse_step(&cfg, &f, k, 5u);
         TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
     }
     TEST_ASSERT_EQUAL_UINT64(0u, vl_get_counters(&est)->tracks_inconsistent);
