@@ -45,7 +45,7 @@ void vl_work_stereo_rows(vl_estimator_t *e, uint32_t count);
 /** The sparse frames' two-view velocity noise matching: the track lookup and the fit of pairs tracks. */
 void vl_work_two_view(vl_estimator_t *e, uint32_t count, uint32_t previous, uint32_t pairs);
 
-/** A sparse frame's tracks found moving on its own carried over from the previous frame: the lookup. */
+/** A sparse frame's tracks found moving on their own, carried over from the previous frame: the id lookup. */
 void vl_work_drift_carry(vl_estimator_t *e, uint32_t count, uint32_t previous);
 
 /** The rescue pass: checked observations re-linearized and gated, then the joint update of the rescued ones. */
