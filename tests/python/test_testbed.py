@@ -95,6 +95,35 @@ def test_compare_counts_ratio_and_top_moves(tmp_path, capsys):
     assert "| grid |" in out and "| g1 | 1.000 | 0.500 | 0.500 |" in out
 
 
+def test_compare_by_kind_counts_each_run_once(tmp_path, capsys):
+    def real(suite, name, ate, obs):
+        c = _cell(suite, name, ate, obs=obs)
+        c["truth_kind"] = "kitti"
+        return c
+
+    def cells(k):
+        # one dense given run in three suites, a sparse clean one, a simulated sparse clean one
+        return [real("conditions", "0027_given_K1_s1", 2.0 * k, 68.0), real("grid", "0027_given_K1_s1", 2.0 * k, 68.0),
+                real("sweep", "0027_given_K1_s1 default", 2.0 * k, 68.0),
+                real("sweep", "0027_given_K1_s1 pixel x10", 3.0, 68.0),
+                real("conditions", "0027_clean_K20_s1", 4.0 / k, 3.4),
+                _cell("realistic", "realistic_d3_clean_s1", 1.0, group="d3 clean", obs=3.3)]
+
+    a, b = _result(cells(1.0)), _result(cells(2.0))
+    kinds = testbed.by_kind(a, b)
+    assert set(kinds) == {"real, dense, given", "real, sparse, clean", "simulated, sparse, clean"}
+    dense = kinds["real, dense, given"]
+    assert dense["runs"] == 2  # the default once, the pixel x10 setting once
+    assert dense["ratio"] == pytest.approx(math.sqrt(2.0)) and (dense["worse"], dense["unchanged"]) == (1, 1)
+    assert kinds["real, sparse, clean"]["ratio"] == pytest.approx(0.5) and kinds["real, sparse, clean"]["better"] == 1
+    assert kinds["simulated, sparse, clean"]["unchanged"] == 1
+    pa, pb = tmp_path / "a.json", tmp_path / "b.json"
+    pa.write_text(json.dumps(a))
+    pb.write_text(json.dumps(b))
+    assert testbed.main(["compare", str(pa), str(pb)]) == 0
+    assert "| real, dense, given | 2 | 1.414 | 0 | 1 | 1 |" in capsys.readouterr().out
+
+
 def test_compare_refuses_a_file_that_is_not_a_testbed_result(tmp_path, capsys):
     bad = tmp_path / "x.json"
     bad.write_text("{}")

@@ -828,13 +828,62 @@ def compare(a, b):
     return out
 
 
-def render_compare(result, name_a, name_b):
+DENSE_OBSERVATIONS = 16  # by_kind: a cell of this many observations a frame or more is dense (the
+                        # estimator's own line, VL_NOISE_DENSE_FRAME: under it a frame is sparse)
+
+
+def cell_kind(cell):
+    """A cell's kind for by_kind: its truth (real: KITTI or pseudo-truth; simulated), density (dense
+    at DENSE_OBSERVATIONS observations a frame or more) and velocities (clean: derived from the truth,
+    with or without added noise; otherwise given or simulated noisy)."""
+    source = "simulated" if cell.get("truth_kind") == "tum" else "real"
+    obs = cell.get("obs_per_frame")
+    density = "n/a" if obs is None else ("dense" if obs >= DENSE_OBSERVATIONS else "sparse")
+    clean = "_clean" in cell["name"] or "clean" in (cell.get("group") or "")
+    velocities = "clean" if clean else ("given" if source == "real" else "noisy")
+    return f"{source}, {density}, {velocities}"
+
+
+def by_kind(a, b):
+    """Every run that both results hold, once (suites share runs: a conditions cell, the grid's cell
+    of the same name and the sweep's "NAME default" are one drive at one configuration), grouped by
+    cell_kind: per kind the runs, the geometric mean of B/A, and the runs better / worse / unchanged.
+    Runs pair by name, not by log: a simulated log's name changes with the simulator's build.
+    a, b: testbed.json contents."""
+    def runs(result):
+        out = {}
+        for c in result["cells"]:
+            name = c["name"][:-len(" default")] if c["name"].endswith(" default") else c["name"]
+            out.setdefault(name, c)
+        return out
+    ra, rb = runs(a), runs(b)
+    kinds = {}
+    for key, ca in ra.items():
+        cb = rb.get(key)
+        xa, xb = ca.get("vislam_ate"), (cb.get("vislam_ate") if cb else None)
+        if xa is None or xb is None or not (xa > 0 and xb > 0):
+            continue
+        k = kinds.setdefault(cell_kind(ca), {"runs": 0, "log_sum": 0.0, "better": 0, "worse": 0, "unchanged": 0})
+        k["runs"] += 1
+        k["log_sum"] += math.log(xb / xa)
+        k["unchanged" if abs(xb - xa) <= UNCHANGED_M else ("better" if xb < xa else "worse")] += 1
+    return {name: {"runs": k["runs"], "ratio": math.exp(k["log_sum"] / k["runs"]), "better": k["better"],
+                   "worse": k["worse"], "unchanged": k["unchanged"]} for name, k in sorted(kinds.items())}
+
+
+def render_compare(result, name_a, name_b, kinds=None):
     """compare()'s result as Markdown."""
     out = [f"A: {name_a}", f"B: {name_b}", "",
            "| suite | A | B | B/A | better | worse | unchanged | n/a |", "|---|---|---|---|---|---|---|---|"]
     for suite, r in result.items():
         out.append(f"| {suite} | {fmt(r['a'])} | {fmt(r['b'])} | {fmt(r['ratio'])} | {r['better']} | "
                    f"{r['worse']} | {r['unchanged']} | {r['na']} |")
+    if kinds:
+        out += ["", "by kind: every run once, B/A as a geometric mean", "",
+                "| kind | runs | B/A | better | worse | unchanged |", "|---|---|---|---|---|---|"]
+        for name, k in kinds.items():
+            out.append(f"| {name} | {k['runs']} | {fmt(k['ratio'])} | {k['better']} | {k['worse']} | "
+                       f"{k['unchanged']} |")
     for suite, r in result.items():
         if not r["moves"]:
             continue
@@ -962,7 +1011,7 @@ def cmd_run(args):
 
 def cmd_compare(args):
     a, b = load_result(args.a), load_result(args.b)
-    print(render_compare(compare(a, b), args.a, args.b))
+    print(render_compare(compare(a, b), args.a, args.b, by_kind(a, b)))
     return 0
 
 
