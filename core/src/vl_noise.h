@@ -92,9 +92,9 @@ int vl_noise_adapt_velocity_two_view(vl_estimator_t *e, const vl_stereo_frame_t 
 
 /**
  * Starts a sparse frame's drift sums (e->work_drift) empty, except that a track the previous
- * (sparse) frame found moving on its own stays so (e->work_moved): its observations are neither
- * used nor admitted while its id lasts on sparse frames in a row. After the frame,
- * vl_noise_keep_drift hands the sums to the next one.
+ * (sparse) frame found moving on its own stays so: it is not admitted again (so never used)
+ * while its id lasts on sparse frames in a row. After the frame, vl_noise_keep_drift hands the
+ * sums to the next one.
  */
 void vl_noise_carry_drift(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count);
 

@@ -473,8 +473,7 @@ void vl_noise_carry_drift(vl_estimator_t *e, const vl_stereo_frame_t *frame, uin
     for (uint32_t i = 0; i < e->num_work_drift; ++i) {
         const int j = previous_observation(e, frame->obs[i].id);
         if (j >= 0 && (uint32_t)j < e->num_prev_drift && e->prev_drift[j].moving) {
-            e->work_drift[i].moving = 1;
-            e->work_moved[i] = 1;
+            e->work_drift[i].moving = 1; /* broken when found: no landmark of it to break again */
         }
     }
 }

@@ -354,9 +354,10 @@ static int second_sight_consistent(const vl_estimator_t *e, uint32_t slot, const
     return vl_mahalanobis3(S, d) <= e->cfg.gate_chi2;
 }
 
-static void add_candidate(vl_candidates_t *c, uint32_t obs, double score)
+/* A candidate for admission; a track found moving on its own is none (vl_noise_track_moving). */
+static void add_candidate(const vl_estimator_t *e, vl_candidates_t *c, uint32_t obs, double score)
 {
-    if (c->count < VL_MAX_FRAME_FEATURES) {
+    if (c->count < VL_MAX_FRAME_FEATURES && !vl_noise_track_moving(e, obs)) {
         c->item[c->count].obs = obs;
         c->item[c->count].score = score;
         c->count++;
@@ -451,8 +452,8 @@ uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, u
             t->frames_seen = 1;
         }
         pending_triangulate(e, y, t);
-        if (t->frames_seen >= min_track_length && !vl_noise_track_moving(e, i)) {
-            add_candidate(candidates, i, admission_score(disparity, t->frames_seen));
+        if (t->frames_seen >= min_track_length) {
+            add_candidate(e, candidates, i, admission_score(disparity, t->frames_seen));
         }
     }
     return k;
@@ -490,8 +491,8 @@ void vl_window_admit(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_candi
     for (uint32_t b = 0; b < e->num_broken; ++b) {
         const vl_stereo_obs_t *o = &frame->obs[e->work_broken[b]];
         const double disparity = o->u_left - o->u_right;
-        if (disparity_admissible(e, disparity) && !vl_noise_track_moving(e, e->work_broken[b])) {
-            add_candidate(c, e->work_broken[b], disparity);
+        if (disparity_admissible(e, disparity)) {
+            add_candidate(e, c, e->work_broken[b], disparity);
         }
     }
     for (uint32_t i = 1; i < c->count; ++i) { /* insertion sort: stable, so deterministic */

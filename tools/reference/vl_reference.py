@@ -536,12 +536,11 @@ class Filter:
         self.velocity_matched = False
         self.moved = set()
         contradicted = set()
-        carried_moving = self.carry_drift(frame)
+        self.carry_drift(frame)
         if self.cfg["adaptive_noise"] and self.cfg["mode"] == "slam":
             self.observe_stereo_rows(frame)
             if had_frame and not repeated and not self.prev_repeated:
                 self.velocity_matched = self.adapt_velocity_two_view(frame, contradicted)
-        self.moved |= carried_moving
         self.contradicted = contradicted
         self.prev_drift = self.drift
         self.step_t2 = self.step_t = 0.0
@@ -983,17 +982,14 @@ class Filter:
 
     def carry_drift(self, frame):
         """A sparse frame's drift sums start empty, but a track the previous (sparse) frame found
-        moving on its own stays so: the observations returned are neither used nor admitted."""
+        moving on its own stays so: it is not admitted again (it was broken when found)."""
         self.drift = {}
         if len(frame) >= VELOCITY_DENSE_FRAME or not self.prev_drift:
-            return set()
-        moving = set()
+            return
         for i, o in enumerate(frame):
             j = next((j for j, x in enumerate(self.prev_frame) if x[0] == o[0]), None)
             if j is not None and j in self.prev_drift and self.prev_drift[j][3]:
                 self.drift[i] = [np.zeros(3), np.zeros((3, 3)), 0, True]
-                moving.add(i)
-        return moving
 
     def drift_step(self, i, j, r, S):
         """A track's two-view residual r (rows clipped at DRIFT_CLIP of their stds) and its expected
