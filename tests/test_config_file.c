@@ -496,6 +496,9 @@ void test_vl_config_default_equals_documented_values(void)
     TEST_ASSERT_EQUAL_DOUBLE(0.0, cfg.velocity_sensor_x);
     TEST_ASSERT_EQUAL_DOUBLE(0.0, cfg.velocity_sensor_y);
     TEST_ASSERT_EQUAL_DOUBLE(0.0, cfg.velocity_sensor_z);
+    TEST_ASSERT_EQUAL_DOUBLE(2.0, cfg.velocity_sensor_std_x);
+    TEST_ASSERT_EQUAL_DOUBLE(0.0, cfg.velocity_sensor_std_y);
+    TEST_ASSERT_EQUAL_DOUBLE(0.0, cfg.velocity_sensor_std_z);
     TEST_ASSERT_EQUAL_DOUBLE(0.5, cfg.max_propagation_dt);
     TEST_ASSERT_EQUAL_UINT32(64, cfg.max_update_observations);
     TEST_ASSERT_EQUAL_DOUBLE(18.5, cfg.max_update_work);
@@ -537,8 +540,8 @@ void test_vl_config_default_equals_documented_values(void)
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(I, cfg.calibration.cam_T_imu, 16);
     TEST_ASSERT_NULL(cfg.landmark_sink);
     TEST_ASSERT_NULL(cfg.log);
-    /* Every member before the calibration is a row of the table: 41 rows, and they tile it. */
-    TEST_ASSERT_EQUAL_UINT(41, NUM_ROWS);
+    /* Every member before the calibration is a row of the table: 44 rows, and they tile it. */
+    TEST_ASSERT_EQUAL_UINT(44, NUM_ROWS);
     size_t end = 0;
     for (size_t i = 0; i < NUM_ROWS; ++i) {
         TEST_ASSERT_TRUE_MESSAGE(k_rows[i].offset >= end, k_rows[i].key);

@@ -60,15 +60,17 @@ static void matmul_n(const double *A, const double *B, double *C, int n)
 /*
  * An initialized estimator whose window holds LANDMARKS random points and whose
  * P (n x n, also returned row-major in Pref) is a random SPD matrix; with the
- * offsets off their rows and columns are zero, as the estimator keeps them.
+ * offsets (states 6..11) or the sensor position (12..14) not estimated their rows
+ * and columns are zero, as the estimator keeps them.
  */
-static void random_state(vl_mode_t mode, int offsets, double *Pref)
+static void random_state(vl_mode_t mode, int offsets, int sensor, double *Pref)
 {
     vl_config_t cfg;
     vl_config_default(&cfg);
     vl_test_kitti_calibration(&cfg.calibration, 1);
     cfg.mode = mode;
     cfg.estimate_input_offsets = offsets;
+    cfg.velocity_sensor_std_x = sensor ? 1.0 : 0.0;
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     est.num_landmarks = LANDMARKS;
     for (int i = 0; i < 3 * LANDMARKS; ++i) {
@@ -85,41 +87,52 @@ static void random_state(vl_mode_t mode, int offsets, double *Pref)
                 s += A[N * i + k] * A[N * j + k];
             }
             const int offset_ij = (i >= 6 && i < 12) || (j >= 6 && j < 12);
-            Pref[N * i + j] = (offsets || !offset_ij) ? 0.01 * s : 0.0;
+            const int sensor_ij = (i >= 12 && i < 15) || (j >= 12 && j < 15);
+            Pref[N * i + j] = ((offsets || !offset_ij) && (sensor || !sensor_ij)) ? 0.01 * s : 0.0;
             *vl_P_at(&est, (uint32_t)i, (uint32_t)j) = Pref[N * i + j];
         }
     }
 }
 
-/* One step, densely: G = B Gp, Phi = I + G E^T (offsets), P <- Phi P Phi^T + G Q G^T + E W E^T. */
-static void dense_step(vl_mode_t mode, const double Gp[36], const double q[6], const double *w, double *P)
+/* B M for a map M (6 x cols, row-major) on the pose: M on the pose rows, hat(l_s) times its
+ * rotation rows on landmark s's (zero when mapping), zero on the parameters'. N x cols. */
+static void lift(vl_mode_t mode, const double *M, int cols, double *out)
 {
-    static double G[N * 6], Phi[N * N], T[N * N], PhiT[N * N];
-    memset(G, 0, sizeof(G));
-    for (int i = 0; i < 6; ++i) {
-        for (int j = 0; j < 6; ++j) {
-            G[6 * i + j] = Gp[6 * i + j];
-        }
-    }
+    memset(out, 0, sizeof(double) * N * (size_t)cols);
+    memcpy(out, M, sizeof(double) * 6 * (size_t)cols);
     for (int s = 0; s < LANDMARKS && mode != VL_MODE_MAPPING; ++s) {
         const double *l = &est.landmark_state[3 * s];
         double L[9];
         vl_skew(l, L);
         for (int r = 0; r < 3; ++r) {
-            for (int j = 0; j < 6; ++j) {
+            for (int j = 0; j < cols; ++j) {
                 double v = 0.0;
                 for (int k = 0; k < 3; ++k) {
-                    v += L[3 * r + k] * Gp[6 * (3 + k) + j];
+                    v += L[3 * r + k] * M[cols * (3 + k) + j];
                 }
-                G[6 * (VL_CORE_DIM + 3 * s + r) + j] = v;
+                out[cols * (VL_CORE_DIM + 3 * s + r) + j] = v;
             }
         }
+    }
+}
+
+/*
+ * One step, densely: G = B Gp, Phi = I + B Gt E^T (parameters), P <- Phi P Phi^T + G Q G^T + E W E^T
+ * (W on the offsets).
+ */
+static void dense_step(vl_mode_t mode, const double Gp[36], const double *Gt, const double q[6], const double *w,
+                       double *P)
+{
+    static double G[N * 6], Gtn[N * VL_PARAM_DIM], Phi[N * N], T[N * N], PhiT[N * N];
+    lift(mode, Gp, 6, G);
+    if (Gt != NULL) {
+        lift(mode, Gt, VL_PARAM_DIM, Gtn);
     }
     for (int i = 0; i < N; ++i) {
         for (int j = 0; j < N; ++j) {
             Phi[N * i + j] = (i == j) ? 1.0 : 0.0;
-            if (w != NULL && j >= 6 && j < 12) {
-                Phi[N * i + j] += G[6 * i + (j - 6)];
+            if (Gt != NULL && j >= 6 && j < VL_CORE_DIM) {
+                Phi[N * i + j] += Gtn[VL_PARAM_DIM * i + (j - 6)];
             }
         }
     }
@@ -156,21 +169,26 @@ static double relative_error(const double *Pref, int dim)
     return err / scale;
 }
 
-static void check_deferred_matches_sequential(vl_mode_t mode, int offsets, int steps)
+static void check_deferred_matches_sequential(vl_mode_t mode, int offsets, int sensor, int steps)
 {
     static double Pref[N * N];
-    random_state(mode, offsets, Pref);
+    random_state(mode, offsets, sensor, Pref);
     for (int k = 0; k < steps; ++k) {
-        double Gp[36], q[6], w[6];
+        double Gp[36], Gt[6 * VL_PARAM_DIM] = {0}, q[6], w[6];
         for (int i = 0; i < 36; ++i) {
             Gp[i] = 0.3 * uniform();
         }
         for (int i = 0; i < 6; ++i) {
+            for (int j = 0; j < VL_PARAM_DIM; ++j) {
+                const int on = j < 6 ? offsets : sensor;
+                Gt[VL_PARAM_DIM * i + j] = on ? (j < 6 ? Gp[6 * i + j] : 0.3 * uniform()) : 0.0;
+            }
             q[i] = 0.01 * (1.5 + uniform());
             w[i] = 0.001 * (1.5 + uniform());
         }
-        dense_step(mode, Gp, q, offsets ? w : NULL, Pref);
-        vl_predict_defer(&est, Gp, q, offsets ? w : NULL);
+        const double *coupled = (offsets || sensor) ? Gt : NULL;
+        dense_step(mode, Gp, coupled, q, offsets ? w : NULL, Pref);
+        vl_predict_defer(&est, Gp, coupled, q, offsets ? w : NULL);
         TEST_ASSERT_EQUAL_UINT32((uint32_t)k + 1u, est.deferred.steps);
         /* The core block (what vl_get_pose reads) is current between updates. */
         TEST_ASSERT_TRUE(relative_error(Pref, VL_CORE_DIM) < 1e-12);
@@ -208,24 +226,33 @@ static void check_deferred_matches_sequential(vl_mode_t mode, int offsets, int s
 
 void test_slam_with_offsets(void)
 {
-    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 1);
-    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 2);
-    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 7);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 0, 1);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 0, 2);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 0, 7);
 }
 
 void test_slam_without_offsets(void)
 {
-    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 1);
-    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 2);
-    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 7);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 0, 1);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 0, 2);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 0, 7);
+}
+
+void test_slam_with_the_sensor_position(void)
+{
+    for (int offsets = 0; offsets <= 1; ++offsets) {
+        check_deferred_matches_sequential(VL_MODE_SLAM, offsets, 1, 1);
+        check_deferred_matches_sequential(VL_MODE_SLAM, offsets, 1, 2);
+        check_deferred_matches_sequential(VL_MODE_SLAM, offsets, 1, 7);
+    }
 }
 
 void test_mapping_with_and_without_offsets(void)
 {
     for (int offsets = 0; offsets <= 1; ++offsets) {
-        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, 1);
-        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, 2);
-        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, 7);
+        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, offsets, 1);
+        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, offsets, 2);
+        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, offsets, 7);
     }
 }
 
@@ -296,9 +323,9 @@ void test_samples_defer_and_a_frame_settles(void)
 void test_a_stale_read_stops_at_the_assert(void)
 {
     static double Pref[N * N];
-    random_state(VL_MODE_SLAM, 1, Pref);
+    random_state(VL_MODE_SLAM, 1, 0, Pref);
     const double Gp[36] = {0.1}, q[6] = {0.01, 0.01, 0.01, 0.01, 0.01, 0.01};
-    vl_predict_defer(&est, Gp, q, NULL);
+    vl_predict_defer(&est, Gp, NULL, q, NULL);
     fflush(stdout);
     const pid_t child = fork();
     TEST_ASSERT_TRUE(child >= 0);
@@ -399,6 +426,7 @@ int main(void)
     UNITY_BEGIN();
     RUN_TEST(test_slam_with_offsets);
     RUN_TEST(test_slam_without_offsets);
+    RUN_TEST(test_slam_with_the_sensor_position);
     RUN_TEST(test_mapping_with_and_without_offsets);
     RUN_TEST(test_samples_defer_and_a_frame_settles);
     RUN_TEST(test_a_stale_read_stops_at_the_assert);

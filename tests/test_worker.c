@@ -143,7 +143,7 @@ static vl_obs_row_t obs[VL_MAX_LANDMARKS];
 void test_update_with_the_worker_equals_the_serial_update_bit_for_bit(void)
 {
     /* Sizes on and off the block edges (32-column panels, 96-row blocks), up to the full window. */
-    static const int cases[][2] = {{15, 1}, {51, 5}, {108, 12}, {183, 17}, {291, 40}, {387, 56}, {387, 128}};
+    static const int cases[][2] = {{18, 1}, {54, 5}, {111, 12}, {186, 17}, {294, 40}, {390, 56}, {390, 128}};
     unsigned state = 7u;
     uint64_t worker_before = 0, loops_before = 0, unused_tasks;
     vl_worker_counts(&worker, &loops_before, &unused_tasks, &worker_before);

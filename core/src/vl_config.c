@@ -29,7 +29,8 @@ void vl_config_preset_seed(vl_config_t *cfg)
     }
     vl_config_default(cfg);
     cfg->estimate_input_offsets = 0;
-    cfg->interpolate_velocities = 0; /* the seed held each sample until the next */
+    cfg->interpolate_velocities = 0;  /* the seed held each sample until the next */
+    cfg->velocity_sensor_std_x = 0.0; /* and took them at the body origin */
     /* W = diag(1e-5 I3, 1e-4 I3) per step; the estimator scales per-sample
      * velocity noise by the step, so at the nominal 0.1 s step these are W. */
     cfg->linear_velocity_noise = sqrt(1e-5) / 0.1;

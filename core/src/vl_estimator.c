@@ -45,13 +45,14 @@ typedef char vl_assert_pending_capacity[(VL_MAX_PENDING >= VL_MAX_FRAME_FEATURES
 
 /* ---------------------------------------------------------------- life cycle */
 
-/* The pose, the offsets and the core block of P now become what a divergence goes back to. */
+/* The pose, the parameters and the core block of P now become what a divergence goes back to. */
 static void keep_sound(vl_estimator_t *e)
 {
     memcpy(e->sound_R, e->R, sizeof(e->sound_R));
     memcpy(e->sound_p, e->p, sizeof(e->sound_p));
     memcpy(&e->sound_offset[0], e->offset_linear, 3 * sizeof(double));
     memcpy(&e->sound_offset[3], e->offset_angular, 3 * sizeof(double));
+    memcpy(&e->sound_offset[6], e->sensor_position, 3 * sizeof(double));
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
         memcpy(&e->sound_P[VL_CORE_DIM * j], vl_P_at(e, 0, j), VL_CORE_DIM * sizeof(double));
     }
@@ -64,7 +65,7 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
     e->cfg = *cfg;
     static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(e->R, I3, sizeof(I3));
-    /* Only the leading 12 x 12 block is live at start; the rest is written as landmarks arrive. */
+    /* Only the leading core block is live at start; the rest is written as landmarks arrive. */
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
         memset(&vl_P(e)[(size_t)j * VL_LD], 0, VL_CORE_DIM * sizeof(double));
     }
@@ -75,6 +76,12 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
             *vl_P_at(e, VL_IDX_OFFSET_ANG + i, VL_IDX_OFFSET_ANG + i) =
                 cfg->angular_offset_prior * cfg->angular_offset_prior;
         }
+    }
+    const double sensor[3] = {cfg->velocity_sensor_x, cfg->velocity_sensor_y, cfg->velocity_sensor_z};
+    const double sensor_std[3] = {cfg->velocity_sensor_std_x, cfg->velocity_sensor_std_y, cfg->velocity_sensor_std_z};
+    for (int i = 0; i < 3; ++i) {
+        e->sensor_position[i] = sensor[i];
+        *vl_P_at(e, VL_IDX_SENSOR + i, VL_IDX_SENSOR + i) = sensor_std[i] * sensor_std[i];
     }
     e->linear_velocity_var = cfg->linear_velocity_noise * cfg->linear_velocity_noise;
     e->angular_velocity_var = cfg->angular_velocity_noise * cfg->angular_velocity_noise;
@@ -93,9 +100,9 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
  * as before: the time bookkeeping and the held IMU sample are kept, and so is
  * the world frame, the estimator starting at the last sound pose (before the
  * input that diverged; that input's motion is lost) with the input offsets
- * then, and the core block of P then when the saved copy still passes the
- * check (else the pose certain and the offsets at their prior, as at vl_init).
- * The offsets are the sensor's and outlast the divergence; the adapted noise
+ * and the velocity sensor's position then, and the core block of P then when
+ * the saved copy still passes the check (else the pose certain and those at
+ * their prior, as at vl_init). They are the sensor's and outlast the divergence; the adapted noise
  * restarts from the configured values, since it may be what let the estimate
  * go. A new timeline (and vl_reset) starts a new world at the identity and the
  * clock afresh.
@@ -118,7 +125,7 @@ static void reset_state(vl_estimator_t *e, int keep_world)
     memcpy(held_linear, old->held_linear, sizeof(held_linear));
     memcpy(held_angular, old->held_angular, sizeof(held_angular));
     const int held_trusted = old->held_trusted;
-    double sound_R[9], sound_p[3], sound_offset[6], sound_P[VL_CORE_DIM * VL_CORE_DIM];
+    double sound_R[9], sound_p[3], sound_offset[VL_PARAM_DIM], sound_P[VL_CORE_DIM * VL_CORE_DIM];
     memcpy(sound_R, old->sound_R, sizeof(sound_R));
     memcpy(sound_p, old->sound_p, sizeof(sound_p));
     memcpy(sound_offset, old->sound_offset, sizeof(sound_offset));
@@ -139,9 +146,10 @@ static void reset_state(vl_estimator_t *e, int keep_world)
         e->held_trusted = held_trusted;
         memcpy(e->R, sound_R, sizeof(sound_R));
         memcpy(e->p, sound_p, sizeof(sound_p));
-        if (vl_guard_block_sound(sound_P, VL_CORE_DIM, VL_CORE_DIM) && vl_all_finite(sound_offset, 6)) {
+        if (vl_guard_block_sound(sound_P, VL_CORE_DIM, VL_CORE_DIM) && vl_all_finite(sound_offset, VL_PARAM_DIM)) {
             memcpy(e->offset_linear, &sound_offset[0], 3 * sizeof(double));
             memcpy(e->offset_angular, &sound_offset[3], 3 * sizeof(double));
+            memcpy(e->sensor_position, &sound_offset[6], 3 * sizeof(double));
             for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
                 memcpy(vl_P_at(e, 0, j), &sound_P[VL_CORE_DIM * j], VL_CORE_DIM * sizeof(double));
             }
@@ -483,6 +491,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     }
     e->step_noise_time2 = 0.0;
     e->step_time = 0.0;
+    memset(e->step_turn, 0, sizeof(e->step_turn));
     e->prev_frame_repeated = repeated;
     e->num_prev_obs = count;
     memcpy(e->prev_obs, frame->obs, count * sizeof(vl_stereo_obs_t));
@@ -579,6 +588,7 @@ vl_status_t vl_get_pose(const vl_estimator_t *e, vl_pose_t *out)
         out->angular_velocity[i] = e->held_angular[i] - e->offset_angular[i];
         out->linear_offset[i] = e->offset_linear[i];
         out->angular_offset[i] = e->offset_angular[i];
+        out->velocity_sensor[i] = e->sensor_position[i];
     }
     double turn[3];
     if (vl_predict_lever_term(e, out->angular_velocity, turn, NULL)) { /* the body origin's velocity */

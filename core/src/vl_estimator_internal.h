@@ -28,6 +28,13 @@
 #define VL_IDX_OFFSET_LIN 6
 /** First state index of the angular velocity offset. */
 #define VL_IDX_OFFSET_ANG 9
+/** First state index of the velocity sensor's position. */
+#define VL_IDX_SENSOR 12
+/** First state index of the parameters (offsets, then the sensor position). */
+#define VL_IDX_PARAM VL_IDX_OFFSET_LIN
+
+typedef char
+    vl_assert_core_layout[(VL_IDX_SENSOR + 3 == VL_CORE_DIM && VL_IDX_PARAM + VL_PARAM_DIM == VL_CORE_DIM) ? 1 : -1];
 
 /** What the current frame did to a window landmark (work_seen). */
 typedef enum {

@@ -158,14 +158,15 @@ int vl_guard_block_sound(const double *B, uint32_t n, size_t ld)
 int vl_guard_diverged(const vl_estimator_t *e)
 {
     if (!vl_all_finite(e->R, 9) || !vl_all_finite(e->p, 3) || !vl_all_finite(e->offset_linear, 3) ||
-        !vl_all_finite(e->offset_angular, 3) || !vl_all_finite(e->landmark_state, 3 * (int)e->num_landmarks)) {
+        !vl_all_finite(e->offset_angular, 3) || !vl_all_finite(e->sensor_position, 3) ||
+        !vl_all_finite(e->landmark_state, 3 * (int)e->num_landmarks)) {
         return 1;
     }
     /* With a prediction deferred, the landmark diagonal is the last settled one (checked
      * then) and what the steps add to it is in the accumulators. */
     const vl_deferred_prediction_t *d = &e->deferred;
-    if (d->steps > 0 &&
-        (!vl_all_finite(d->noise, VL_CORE_DIM * VL_CORE_DIM) || !vl_all_finite(d->transition, VL_CORE_DIM * 6))) {
+    if (d->steps > 0 && (!vl_all_finite(d->noise, VL_CORE_DIM * VL_CORE_DIM) ||
+                         !vl_all_finite(d->transition, VL_CORE_DIM * VL_PARAM_DIM))) {
         return 1;
     }
     if (!vl_guard_block_sound(e->P, VL_CORE_DIM, VL_LD)) { /* the core block: current at any time */

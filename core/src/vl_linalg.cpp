@@ -191,20 +191,22 @@ void mirror_lower_to_upper(MatMap &P, Eigen::Index from = 1)
 }
 
 using CoreMat = Eigen::Matrix<double, VL_CORE_DIM, VL_CORE_DIM>; /* column-major, as the accumulators */
-using Mat12x6 = Eigen::Matrix<double, VL_CORE_DIM, 6>;
-using Mat3x12 = Eigen::Matrix<double, 3, VL_CORE_DIM>;
+using CoreParamMat = Eigen::Matrix<double, VL_CORE_DIM, VL_PARAM_DIM>;
+using ParamMat = Eigen::Matrix<double, VL_PARAM_DIM, VL_PARAM_DIM>;
+using Mat3xCore = Eigen::Matrix<double, 3, VL_CORE_DIM>;
+using Mat3xParam = Eigen::Matrix<double, 3, VL_PARAM_DIM>;
 
 /*
  * What every landmark row of a deferred prediction shares (vl_la_settle): with
- * U = [B, E] (n x 12; identity on the core rows) and Phi = I + U Y E^T the
- * steps' transition, Phi P0 Phi^T + U A U^T = P0 + U Z^T + Z U^T with
+ * U = [B, E] (n x VL_CORE_DIM; identity on the core rows) and Phi = I + U Y E^T
+ * the steps' transition, Phi P0 Phi^T + U A U^T = P0 + U Z^T + Z U^T with
  * Z = M Y^T + U A / 2 and M = P0 E + U Y Pbb0 / 2 (the form of
- * vl_la_propagate's M). Pose states are 0..5, rotation 3..5, offsets 6..11.
+ * vl_la_propagate's M). Pose states are 0..5, rotation 3..5, parameters 6 on.
  */
 struct settle_core {
-    Mat12x6 Y;
-    Eigen::Matrix<double, 6, 6> half_Pbb;
-    Mat3x12 half_A_rot;                          /* A's rotation rows / 2 */
+    CoreParamMat Y;
+    ParamMat half_Pbb;
+    Mat3xCore half_A_rot;                        /* A's rotation rows / 2 */
     Eigen::Matrix<double, VL_CORE_DIM, 3> Z_rot; /* Z's core rows, rotation columns */
 };
 
@@ -213,10 +215,10 @@ settle_core settle_prepare(const vl_deferred_prediction_t *d)
     settle_core c;
     const Eigen::Map<const CoreMat> core0(d->core0);
     const Eigen::Map<const CoreMat> A(d->noise);
-    c.Y = Eigen::Map<const Mat12x6>(d->transition);
-    c.half_Pbb = 0.5 * core0.bottomRightCorner<6, 6>();
+    c.Y = Eigen::Map<const CoreParamMat>(d->transition);
+    c.half_Pbb = 0.5 * core0.bottomRightCorner<VL_PARAM_DIM, VL_PARAM_DIM>();
     c.half_A_rot = 0.5 * A.middleRows<3>(3);
-    Mat12x6 M = core0.rightCols<6>();
+    CoreParamMat M = core0.rightCols<VL_PARAM_DIM>();
     M.noalias() += c.Y * c.half_Pbb;
     CoreMat Z = 0.5 * A;
     Z.noalias() += M * c.Y.transpose();
@@ -225,7 +227,7 @@ settle_core settle_prepare(const vl_deferred_prediction_t *d)
 }
 
 /*
- * One landmark's rows against the core (3 x 12, read before the deferred steps)
+ * One landmark's rows against the core (3 x VL_CORE_DIM, read before the deferred steps)
  * to their settled values: rows + Z_s + Lam Z_c,rot^T with Lam = hat(point)
  * (B's block on the landmark's rows; zero without a point). Returns Lam and
  * Z_s's rotation columns for the landmark block.
@@ -237,11 +239,11 @@ void settle_rows(const settle_core &c, const double *point, RowsT &&rows, Eigen:
     if (point != nullptr) {
         Lam << 0.0, -point[2], point[1], point[2], 0.0, -point[0], -point[1], point[0], 0.0;
     }
-    Eigen::Matrix<double, 3, 6> V;
+    Mat3xParam V;
     V.noalias() = Lam * c.Y.middleRows<3>(3);
-    Eigen::Matrix<double, 3, 6> M = rows.template rightCols<6>();
+    Mat3xParam M = rows.template rightCols<VL_PARAM_DIM>();
     M.noalias() += V * c.half_Pbb;
-    Mat3x12 Z;
+    Mat3xCore Z;
     Z.noalias() = M * c.Y.transpose();
     Z.noalias() += Lam * c.half_A_rot;
     rows += Z;
@@ -258,28 +260,30 @@ extern "C" void vl_la_configure(void)
     Eigen::setCpuCacheSizes(32 * 1024, 96 * 1024, 96 * 1024);
 }
 
-extern "C" void vl_la_propagate(double *Pbuf, int ld, int n, const double *Gbuf, const double noise_var[6],
-                                const double offset_var[6], double *work)
+extern "C" void vl_la_propagate(double *Pbuf, int ld, int n, const double *Gbuf, const double *Gtbuf,
+                                const double noise_var[6], const double offset_var[6], double *work)
 {
     no_heap_scope guard;
     MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
     const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 6>> G(Gbuf, n, 6);
-    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 6>> M(work, n, 6);
 
-    if (offset_var != nullptr) {
-        /* Phi P Phi^T = P + G M^T + M G^T with M = P E + G (E^T P E) / 2. */
-        M = P.middleCols<6>(6);
-        const Eigen::Matrix<double, 6, 6> half_Pbb = 0.5 * P.block<6, 6>(6, 6);
-        M.noalias() += G * half_Pbb;
-        /* G M^T + M G^T = ((G + M)(G + M)^T - (G - M)(G - M)^T) / 2: two symmetric
-         * rank-6 updates, which Eigen evaluates in place. */
-        M += G;
+    if (Gtbuf != nullptr) {
+        /* Phi P Phi^T = P + Gt M^T + M Gt^T with M = P E + Gt (E^T P E) / 2. */
+        const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, VL_PARAM_DIM>> Gt(Gtbuf, n, VL_PARAM_DIM);
+        Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, VL_PARAM_DIM>> M(work, n, VL_PARAM_DIM);
+        M = P.middleCols<VL_PARAM_DIM>(6);
+        const ParamMat half_Pbb = 0.5 * P.block<VL_PARAM_DIM, VL_PARAM_DIM>(6, 6);
+        M.noalias() += Gt * half_Pbb;
+        /* Gt M^T + M Gt^T = ((Gt + M)(Gt + M)^T - (Gt - M)(Gt - M)^T) / 2: two symmetric
+         * rank-VL_PARAM_DIM updates, which Eigen evaluates in place. */
+        M += Gt;
         P.selfadjointView<Eigen::Lower>().rankUpdate(M, 0.5);
-        M -= 2.0 * G;
+        M -= 2.0 * Gt;
         P.selfadjointView<Eigen::Lower>().rankUpdate(M, -0.5);
     }
-    M.noalias() = G * Eigen::Map<const Eigen::Matrix<double, 6, 1>>(noise_var).cwiseSqrt().asDiagonal();
-    P.selfadjointView<Eigen::Lower>().rankUpdate(M);
+    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 6>> N(work, n, 6);
+    N.noalias() = G * Eigen::Map<const Eigen::Matrix<double, 6, 1>>(noise_var).cwiseSqrt().asDiagonal();
+    P.selfadjointView<Eigen::Lower>().rankUpdate(N);
     if (offset_var != nullptr) {
         P.diagonal().segment<6>(6) += Eigen::Map<const Eigen::Matrix<double, 6, 1>>(offset_var);
     }
@@ -320,7 +324,7 @@ extern "C" void vl_la_settled_landmark(const double *Pbuf, int ld, int col, cons
     no_heap_scope guard;
     ConstMatMap P(Pbuf, col + 3, col + 3, Eigen::OuterStride<>(ld));
     const settle_core c = settle_prepare(d);
-    Eigen::Map<Mat3x12> rows(cross);
+    Eigen::Map<Mat3xCore> rows(cross);
     rows = P.block<3, VL_CORE_DIM>(col, 0);
     Eigen::Matrix3d Lam, Z_rot;
     settle_rows(c, point, rows, Lam, Z_rot);

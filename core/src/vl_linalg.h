@@ -36,19 +36,20 @@ void vl_la_configure(void);
 
 /**
  * Prediction step in invariant error coordinates, where the error only moves
- * through the inputs: with G (n x 6, column-major) the input Jacobian,
- *   P <- Phi P Phi^T + G diag(noise_var) G^T (+ diag(offset_var) on states 6..11),
- *   Phi = I + G E^T, E selecting the input offset states 6..11 (only when
- *   offset_var is not NULL; otherwise the offsets are not estimated).
- * @param work >= 6 n doubles
+ * through the inputs: with G (n x 6, column-major) the input noise's Jacobian
+ * and Gt (n x VL_PARAM_DIM, column-major) the parameters' (offsets, sensor position),
+ *   P <- Phi P Phi^T + G diag(noise_var) G^T (+ diag(offset_var) on the offsets' states 6..11),
+ *   Phi = I + Gt E^T, E selecting the parameter states 6..VL_CORE_DIM-1 (Gt NULL when no
+ *   parameter is estimated: Phi = I).
+ * @param work >= VL_PARAM_DIM n doubles
  */
-void vl_la_propagate(double *P, int ld, int n, const double *G, const double noise_var[6], const double offset_var[6],
-                     double *work);
+void vl_la_propagate(double *P, int ld, int n, const double *G, const double *Gt, const double noise_var[6],
+                     const double offset_var[6], double *work);
 
 /**
  * Applies a deferred prediction (vl_deferred_prediction_t: K steps whose core
  * block is already in P) to the landmark rows and columns of P. With
- * U = [B, E] (n x 12: identity on the core rows, hat(l_s) times the rotation
+ * U = [B, E] (n x VL_CORE_DIM: identity on the core rows, hat(l_s) times the rotation
  * rows' selector on landmark s's rows), Y and A the steps' transition and noise
  * in core coordinates and P0 the core block before them,
  *   P <- P + U Z^T + Z U^T,  Z = M Y^T + U A / 2,  M = P E + U Y Pbb0 / 2:
@@ -56,13 +57,13 @@ void vl_la_propagate(double *P, int ld, int n, const double *G, const double noi
  * rank-6 product on the landmark block.
  * @param points the landmarks' world points (3 each), or NULL when B's landmark
  *               rows are zero (mapping: the trajectory is taken as known)
- * @param work   >= 12 (n - 12) doubles
+ * @param work   >= 12 (n - VL_CORE_DIM) doubles
  */
 void vl_la_settle(double *P, int ld, int n, const vl_deferred_prediction_t *d, const double *points, double *work);
 
 /**
  * One landmark's rows as vl_la_settle leaves them, P untouched: against the
- * core (3 x 12, column-major) and its own 3 x 3 block.
+ * core (3 x VL_CORE_DIM, column-major) and its own 3 x 3 block.
  * @param col   the landmark's first state index
  * @param point its world point, or NULL as in vl_la_settle
  */

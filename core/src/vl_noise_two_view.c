@@ -504,10 +504,12 @@ static double chi2_quantile_99(uint32_t k)
 }
 
 /* The motion error the filter expects over the interval, per axis of the body frame: the input
- * noise (the velocity variance x sum tau^2) and the offsets' error (their variance x (sum tau)^2),
- * both through the input map T = [I hat(p); 0 I] of a velocity sensor at p, which the
- * prediction applies: there the angular noise and offsets reach the linear motion as hat(p)
- * times them. The diagonal of T Q T^T, as the fit weighs each axis on its own. */
+ * noise (the velocity variance x sum tau^2) and the parameters' error, J P_tt J^T with
+ * J = [sum tau I, (hat(sum tau w); 0)] (an offset error acts over the whole interval, a sensor
+ * position error through the turn), both through the input map T = [I hat(p); 0 I] of a velocity
+ * sensor at p, which the prediction applies: there the angular noise and offsets reach the
+ * linear motion as hat(p) times them. The diagonal of T Q T^T, as the fit weighs each axis on its
+ * own. */
 static void expected_motion_error(const vl_estimator_t *e, double q[6])
 {
     double input[36] = {0}, skew[9];
@@ -521,6 +523,37 @@ static void expected_motion_error(const vl_estimator_t *e, double q[6])
                 const double v = vl_P_value(e, VL_IDX_OFFSET_LIN + (uint32_t)i, VL_IDX_OFFSET_LIN + (uint32_t)j) * t2;
                 input[6 * i + j] += v;
                 input[6 * j + i] += i != j ? v : 0.0;
+            }
+        }
+    }
+    if (vl_predict_sensor_estimated(e)) {
+        /* The sensor's block and its cross terms with the offsets: with Js = (hat(W); 0),
+         * Js P_ss Js^T + t (Js P_sb + P_bs Js^T), W = sum tau w. */
+        double W[9], WP[9] = {0}, WPW[9] = {0}, cross[18] = {0};
+        vl_skew(e->step_turn, W);
+        for (uint32_t i = 0; i < 3; ++i) {
+            for (uint32_t j = 0; j < 3; ++j) {
+                for (uint32_t k = 0; k < 3; ++k) {
+                    WP[3 * i + j] += W[3 * i + k] * vl_P_value(e, VL_IDX_SENSOR + k, VL_IDX_SENSOR + j);
+                }
+            }
+        }
+        vl_matmul_bt(WP, W, WPW, 3, 3, 3);
+        for (uint32_t i = 0; i < 3; ++i) { /* Js P_sb: 3 x 6 */
+            for (uint32_t j = 0; j < 6; ++j) {
+                for (uint32_t k = 0; k < 3; ++k) {
+                    cross[6 * i + j] += W[3 * i + k] * vl_P_value(e, VL_IDX_SENSOR + k, VL_IDX_OFFSET_LIN + j);
+                }
+            }
+        }
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) {
+                input[6 * i + j] += WPW[3 * i + j];
+            }
+            for (int j = 0; j < 6; ++j) {
+                const double v = e->step_time * cross[6 * i + j];
+                input[6 * i + j] += v;
+                input[6 * j + i] += v;
             }
         }
     }

@@ -17,14 +17,17 @@
 
 /*
  * T <- T exp(xi), xi = tau u, with the input's noise (variance per axis of u)
- * and, when offset_var is not NULL, the offsets' error coupled in and walking.
- * Input noise n and offset error db both act as u -> u - n - db, which moves the
- * pose error by G (n + db) with G = -tau Ad(T_new) J_r(tau u), and each landmark
- * error by hat(l_i) times its rotation rows (the world turns under the
- * landmarks, which stay put).
+ * and, when coupled, the parameters' error coupled in and the offsets walking
+ * (offset_var, NULL when they are not estimated). Input noise n and offset
+ * error db both act as u -> u - n - db, which moves the pose error by G (n + db)
+ * with G = -tau Ad(T_new) J_r(tau u), and each landmark error by hat(l_i) times
+ * its rotation rows (the world turns under the landmarks, which stay put). An
+ * error ds of the velocity sensor's position leaves the sensor's velocity
+ * wrongly corrected by w x ds: the body twist moves by -hat(w) ds on its linear
+ * rows, and the pose error by G's linear columns times hat(w) ds.
  */
 static void advance(vl_estimator_t *e, int64_t utime, double tau, const double xi[6], const double noise_var[6],
-                    const double offset_var[6], const double sensor_skew[9])
+                    int coupled, const double offset_var[6], const double sensor_skew[9])
 {
     double dR[9], dp[3], Rn[9], t[3];
     vl_se3_exp(xi, dR, dp);
@@ -44,6 +47,22 @@ static void advance(vl_estimator_t *e, int64_t utime, double tau, const double x
     for (int i = 0; i < 36; ++i) {
         Gp[i] *= -tau;
     }
+    /* The parameters' columns (6 x VL_PARAM_DIM, row-major): the offsets', then the sensor position's. */
+    double Gt[6 * VL_PARAM_DIM] = {0};
+    if (coupled && vl_predict_sensor_estimated(e)) {
+        double W[9];
+        const double w[3] = {xi[3] / tau, xi[4] / tau, xi[5] / tau};
+        vl_skew(w, W);
+        for (int i = 0; i < 6; ++i) {
+            for (int j = 0; j < 3; ++j) {
+                double v = 0.0;
+                for (int k = 0; k < 3; ++k) {
+                    v += Gp[6 * i + k] * W[3 * k + j];
+                }
+                Gt[VL_PARAM_DIM * i + 6 + j] = v;
+            }
+        }
+    }
     if (sensor_skew != NULL) {
         /* The body twist is T (u - n - db) with T = [I hat(p); 0 I]: G becomes G T, so the
          * angular noise and offsets reach the linear velocity through the lever arm. */
@@ -59,8 +78,13 @@ static void advance(vl_estimator_t *e, int64_t utime, double tau, const double x
             }
         }
     }
-    vl_work_predict(e, offset_var != NULL);
-    vl_predict_defer(e, Gp, noise_var, offset_var);
+    if (coupled && offset_var != NULL) {
+        for (int i = 0; i < 6; ++i) {
+            memcpy(&Gt[VL_PARAM_DIM * i], &Gp[6 * i], 6 * sizeof(double));
+        }
+    }
+    vl_work_predict(e, coupled);
+    vl_predict_defer(e, Gp, coupled ? Gt : NULL, noise_var, offset_var);
 }
 
 /*
@@ -98,12 +122,23 @@ static void predict_with(vl_estimator_t *e, int64_t utime, const double lin[3], 
     const double qv = e->cfg.linear_offset_walk * e->cfg.linear_offset_walk * tau;
     const double qw = e->cfg.angular_offset_walk * e->cfg.angular_offset_walk * tau;
     const double offset_var[6] = {qv, qv, qv, qw, qw, qw};
-    advance(e, utime, tau, xi, noise_var, e->cfg.estimate_input_offsets ? offset_var : NULL, lever ? S : NULL);
+    for (int i = 0; i < 3; ++i) {
+        e->step_turn[i] += xi[3 + i];
+    }
+    const int offsets = e->cfg.estimate_input_offsets;
+    advance(e, utime, tau, xi, noise_var, offsets || vl_predict_sensor_estimated(e), offsets ? offset_var : NULL,
+            lever ? S : NULL);
+}
+
+int vl_predict_sensor_estimated(const vl_estimator_t *e)
+{
+    return e->cfg.velocity_sensor_std_x > 0.0 || e->cfg.velocity_sensor_std_y > 0.0 ||
+           e->cfg.velocity_sensor_std_z > 0.0;
 }
 
 int vl_predict_sensor_skew(const vl_estimator_t *e, double skew[9])
 {
-    const double p[3] = {e->cfg.velocity_sensor_x, e->cfg.velocity_sensor_y, e->cfg.velocity_sensor_z};
+    const double *p = e->sensor_position;
     if (p[0] == 0.0 && p[1] == 0.0 && p[2] == 0.0) {
         return 0;
     }
@@ -124,23 +159,25 @@ int vl_predict_lever_term(const vl_estimator_t *e, const double w[3], double out
 
 /*
  * Between updates the landmarks do not move, so every step's G = B Gp with B
- * (n x 6) fixed: identity on the pose rows, zero on the offsets', hat(l_s) times
- * the rotation rows' selector on landmark s (zero when mapping). As B has no
- * offset rows (E^T B = 0), with U = [B, E] each step's Phi = I + G E^T moves U
- * within itself, Phi U = U F with F = [I Gp; 0 I] (12 x 12), and K steps give
+ * (n x 6) fixed: identity on the pose rows, zero on the parameters', hat(l_s)
+ * times the rotation rows' selector on landmark s (zero when mapping), and so
+ * is the parameters' map B Gt. As B has no parameter rows (E^T B = 0), with
+ * U = [B, E] each step's Phi = I + B Gt E^T moves U within itself, Phi U = U F
+ * with F = [I Gt; 0 I], and K steps give
  *   P_K = (I + U Y E^T) P_0 (I + U Y E^T)^T + U A U^T,
- * Y the offset columns of F_K ... F_1 - I (here [sum Gp; 0]) and A the noise
+ * Y the parameter columns of F_K ... F_1 - I (here [sum Gt; 0]) and A the noise
  * G Q G^T and the offsets' walk propagated as the core block itself is, from
  * zero: the sequential recursion exactly, in exact arithmetic. So a step
  * propagates the core block, A and Y (O(1)); vl_predict_settle applies the rest.
  *
- * A diagonal per-step offset transition a (a Gauss-Markov offset; a = 1 here)
- * fits the same accumulators: F = [I Gp; 0 diag(a)], the core block and A
- * propagate with it, and Y <- (F (I + [0 Y])) - I in its offset columns, i.e.
- * Y_pose += Gp (I + Y_offset) and Y_offset <- diag(a) (I + Y_offset) - I;
- * vl_la_settle applies I + U Y E^T whatever Y's offset rows hold.
+ * A diagonal per-step parameter transition a (a Gauss-Markov offset; a = 1 here)
+ * fits the same accumulators: F = [I Gt; 0 diag(a)], the core block and A
+ * propagate with it, and Y <- (F (I + [0 Y])) - I in its parameter columns, i.e.
+ * Y_pose += Gt (I + Y_param) and Y_param <- diag(a) (I + Y_param) - I;
+ * vl_la_settle applies I + U Y E^T whatever Y's parameter rows hold.
  */
-void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double noise_var[6], const double offset_var[6])
+void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double Gt[6 * VL_PARAM_DIM],
+                      const double noise_var[6], const double offset_var[6])
 {
     vl_deferred_prediction_t *d = &e->deferred;
     if (d->steps == 0) {
@@ -150,20 +187,23 @@ void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double noise
         memset(d->transition, 0, sizeof(d->transition));
         memset(d->noise, 0, sizeof(d->noise));
     }
-    /* The step's G on the core: Gp on the pose rows, zero on the offsets'. Column-major 12 x 6. */
-    double G[VL_CORE_DIM * 6], work[VL_CORE_DIM * 6];
-    for (int j = 0; j < 6; ++j) {
-        for (int i = 0; i < 6; ++i) {
+    /* The step's maps on the core, column-major: Gp and Gt on the pose rows, zero on the parameters'. */
+    double G[VL_CORE_DIM * 6] = {0}, Gc[VL_CORE_DIM * VL_PARAM_DIM] = {0}, work[VL_CORE_DIM * VL_PARAM_DIM];
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < 6; ++j) {
             G[VL_CORE_DIM * j + i] = Gp[6 * i + j];
-            G[VL_CORE_DIM * j + 6 + i] = 0.0;
+        }
+        for (int j = 0; j < VL_PARAM_DIM && Gt != NULL; ++j) {
+            Gc[VL_CORE_DIM * j + i] = Gt[VL_PARAM_DIM * i + j];
         }
     }
-    vl_la_propagate(e->P, VL_LD, VL_CORE_DIM, G, noise_var, offset_var, work);
-    vl_la_propagate(d->noise, VL_CORE_DIM, VL_CORE_DIM, G, noise_var, offset_var, work);
-    if (offset_var != NULL) {
-        for (int j = 0; j < 6; ++j) {
+    const double *coupling = Gt != NULL ? Gc : NULL;
+    vl_la_propagate(e->P, VL_LD, VL_CORE_DIM, G, coupling, noise_var, offset_var, work);
+    vl_la_propagate(d->noise, VL_CORE_DIM, VL_CORE_DIM, G, coupling, noise_var, offset_var, work);
+    if (Gt != NULL) {
+        for (int j = 0; j < VL_PARAM_DIM; ++j) {
             for (int i = 0; i < 6; ++i) {
-                d->transition[VL_CORE_DIM * j + i] += Gp[6 * i + j];
+                d->transition[VL_CORE_DIM * j + i] += Gt[VL_PARAM_DIM * i + j];
             }
         }
     }
@@ -236,8 +276,8 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime)
  * turn may end within a frame). Without that motion (before two frames, or
  * outside slam mode, where the frames do not move the pose) the mean stays, and
  * the noise also covers the held sample's speed and turn rate. No input is
- * integrated, so the offsets neither couple in nor walk (seconds of their walk
- * are nothing beside their prior).
+ * integrated, so the parameters do not couple in and the offsets do not walk
+ * (seconds of their walk are nothing beside their prior).
  */
 void vl_predict_silence_to(vl_estimator_t *e, int64_t utime)
 {
@@ -257,7 +297,7 @@ void vl_predict_silence_to(vl_estimator_t *e, int64_t utime)
         w += vl_norm3(e->held_angular);
     }
     const double noise_var[6] = {v * v, v * v, v * v, w * w, w * w, w * w};
-    advance(e, utime, tau, xi, noise_var, NULL, NULL); /* the frames' own body velocity: no lever arm */
+    advance(e, utime, tau, xi, noise_var, 0, NULL, NULL); /* the frames' own body velocity: no lever arm */
     e->unknown_motion = 1;
     e->unknown_motion_var[0] = v * v;
     e->unknown_motion_var[1] = w * w;

@@ -23,19 +23,22 @@ void vl_predict_to(vl_estimator_t *e, int64_t utime);
  */
 void vl_predict_to_sample(vl_estimator_t *e, const vl_imu_sample_t *imu);
 
+/** Whether the velocity sensor's position is estimated (a velocity_sensor_std_* above 0). */
+int vl_predict_sensor_estimated(const vl_estimator_t *e);
+
 /**
- * hat(p) of the velocity sensor's position p (velocity_sensor_x, _y, _z) in @p skew: the
- * body twist is T u with T = [I hat(p); 0 I], so the angular noise and offsets reach the
- * linear velocity through it. Returns 0, and leaves @p skew alone, when the sensor is at the
- * origin.
+ * hat(p) of the velocity sensor's position p (its estimate, from velocity_sensor_x, _y, _z) in
+ * @p skew: the body twist is T u with T = [I hat(p); 0 I], so the angular noise and offsets
+ * reach the linear velocity through it. Returns 0, and leaves @p skew alone, when the sensor is
+ * at the origin.
  */
 int vl_predict_sensor_skew(const vl_estimator_t *e, double skew[9]);
 
 /**
- * The velocity sensor's lever arm term p x w (p = velocity_sensor_x, _y, _z, the sensor's
- * position in the body frame): the body origin's velocity is the sensor's plus it
- * (v_body = v - w x p); hat(p) in @p skew when it is not NULL. @p out is zero, and the return 0,
- * when the sensor is at the origin.
+ * The velocity sensor's lever arm term p x w (p the sensor's estimated position in the body
+ * frame): the body origin's velocity is the sensor's plus it (v_body = v - w x p); hat(p) in
+ * @p skew when it is not NULL. @p out is zero, and the return 0, when the sensor is at the
+ * origin.
  */
 int vl_predict_lever_term(const vl_estimator_t *e, const double w[3], double out[3], double skew[9]);
 
@@ -53,10 +56,14 @@ void vl_predict_silence_to(vl_estimator_t *e, int64_t utime);
 /**
  * One prediction step's covariance: P's core block and the deferred
  * accumulators (e->deferred) move by the step with pose input Jacobian Gp
- * (6 x 6 row-major: G = -tau Ad(T) J_r); the landmark rows wait for
- * vl_predict_settle. offset_var is NULL when the offsets are not estimated.
+ * (6 x 6 row-major: G = -tau Ad(T) J_r, times T for a sensor off the origin)
+ * and the parameters' pose rows Gt (6 x VL_PARAM_DIM row-major: the offsets'
+ * columns, then the sensor position's; NULL when no parameter is estimated);
+ * the landmark rows wait for vl_predict_settle. offset_var, the offsets' walk,
+ * is NULL when the offsets are not estimated.
  */
-void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double noise_var[6], const double offset_var[6]);
+void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double Gt[6 * VL_PARAM_DIM],
+                      const double noise_var[6], const double offset_var[6]);
 
 /**
  * Applies the deferred prediction to the whole of P, which then equals the

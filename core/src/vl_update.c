@@ -160,6 +160,7 @@ vl_status_t vl_update_apply(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t
         e->p[i] = v[i] + dp[i];
         e->offset_linear[i] += dx[VL_IDX_OFFSET_LIN + i];
         e->offset_angular[i] += dx[VL_IDX_OFFSET_ANG + i];
+        e->sensor_position[i] += dx[VL_IDX_SENSOR + i];
     }
     for (uint32_t s = 0; s < e->num_landmarks; ++s) {
         double *l = &e->landmark_state[3 * s];

@@ -61,21 +61,22 @@ void vl_work_begin(vl_estimator_t *e)
     memset(&e->work, 0, sizeof(e->work));
 }
 
-/* vl_la_propagate on n states: one symmetric rank-6 update of the lower triangle, three with offsets. */
-static uint64_t propagate_flops(uint64_t n, int with_offsets)
+/* vl_la_propagate on n states: one symmetric rank-6 update of the lower triangle, and two
+ * rank-VL_PARAM_DIM ones when the parameters couple in. */
+static uint64_t propagate_flops(uint64_t n, int coupled)
 {
-    const uint64_t rank6 = 6u * n * (n + 1u);
-    uint64_t flops = 6u * n + rank6;
-    if (with_offsets) {
-        flops += 2u * rank6 + 2u * 36u * n + 18u * n; /* M = P E + G Pbb / 2, G +- M */
+    const uint64_t np = VL_PARAM_DIM;
+    uint64_t flops = 6u * n + 6u * n * (n + 1u);
+    if (coupled) { /* M = P E + Gt Pbb / 2, Gt +- M */
+        flops += 2u * np * n * (n + 1u) + 2u * np * np * n + 3u * np * n;
     }
     return flops;
 }
 
-void vl_work_predict(vl_estimator_t *e, int with_offsets)
+void vl_work_predict(vl_estimator_t *e, int coupled)
 {
-    /* The pose, then P's core block and the deferred noise (12 states each): O(1). */
-    const uint64_t flops = VL_WORK_POSE + 2u * propagate_flops(VL_CORE_DIM, with_offsets);
+    /* The pose, then P's core block and the deferred noise (VL_CORE_DIM states each): O(1). */
+    const uint64_t flops = VL_WORK_POSE + 2u * propagate_flops(VL_CORE_DIM, coupled);
     add(e, &e->work.predict, flops);
     if (e->work.state_dim == 0) {
         e->work.state_dim = VL_CORE_DIM + 3u * e->num_landmarks;
@@ -84,16 +85,17 @@ void vl_work_predict(vl_estimator_t *e, int with_offsets)
 
 void vl_work_settle(vl_estimator_t *e, uint32_t n_states, int moving)
 {
-    /* The shared core terms (M, Z on 12 rows), each landmark's rows against the core
-     * (V, M, Z: 3 x 6 x 6, 3 x 6 x 12 and two 3 x 3 x 12 products), and the
+    /* The shared core terms (M, Z on the core's rows), each landmark's rows against the core
+     * (V, M, Z: 3 x 3 x np, 3 x np x np, 3 x np x core and two 3 x 3 x core products), and the
      * landmark block's rank-6 product on its lower triangle. */
     const uint64_t nl = n_states - VL_CORE_DIM;
     if (nl == 0) {
         return; /* the core block is current already */
     }
     const uint64_t landmarks = nl / 3u;
-    const uint64_t core = 2u * VL_CORE_DIM * 6u * 6u + 2u * VL_CORE_DIM * 6u * VL_CORE_DIM + 300u;
-    const uint64_t per_landmark = 2u * (3u * 3u * 6u + 3u * 6u * 6u + 3u * 6u * 12u + 2u * 3u * 3u * 12u) + 100u;
+    const uint64_t np = VL_PARAM_DIM, nc = VL_CORE_DIM;
+    const uint64_t core = 2u * nc * np * np + 2u * nc * np * nc + 300u;
+    const uint64_t per_landmark = 2u * (3u * 3u * np + 3u * np * np + 3u * np * nc + 2u * 3u * 3u * nc) + 100u;
     const uint64_t block = moving ? 6u * nl * (nl + 1u) : 0u;
     add(e, &e->work.predict, core + landmarks * per_landmark + block);
 }

@@ -18,8 +18,9 @@ uint64_t vl_work_joint_update(uint32_t n_states, uint32_t k_obs);
 /** Starts a vl_propagate or vl_update call: its work so far is zero. */
 void vl_work_begin(vl_estimator_t *e);
 
-/** A prediction step: the pose, P's core block and the deferred noise (O(1) in the state dimension). */
-void vl_work_predict(vl_estimator_t *e, int with_offsets);
+/** A prediction step: the pose, P's core block and the deferred noise (O(1) in the state dimension);
+ * coupled: the parameters (offsets, sensor position) couple in. */
+void vl_work_predict(vl_estimator_t *e, int coupled);
 
 /** The deferred prediction applied to an n-state P (moving: the landmark block changes, not mapping). */
 void vl_work_settle(vl_estimator_t *e, uint32_t n, int moving);

@@ -239,20 +239,23 @@ def test_frame_stats_are_the_running_counters_and_feed_segments(vislam_run, tmp_
     header = fs.read_text().splitlines()[0].split()
     rows = np.loadtxt(fs, ndmin=2)
     counters = json.loads(stats.read_text())["core_counters"]
-    assert header[:2] == ["#", "time"] and header[-11:-8] == ["linear_velocity_noise", "angular_velocity_noise",
-                                                              "pixel_noise"]
-    assert header[-8:-2] == [f"{k}_offset_{a}" for k in ("linear", "angular") for a in "xyz"]
-    assert header[-2:] == ["innovation_ratio", "innovation_rows"]
+    assert header[:2] == ["#", "time"] and header[-14:-11] == ["linear_velocity_noise", "angular_velocity_noise",
+                                                               "pixel_noise"]
+    assert header[-11:-5] == [f"{k}_offset_{a}" for k in ("linear", "angular") for a in "xyz"]
+    assert header[-5:-3] == ["innovation_ratio", "innovation_rows"]
+    assert header[-3:] == [f"velocity_sensor_{a}" for a in "xyz"]
     assert rows.shape == (len(read_tum(traj)), len(header) - 1)
     assert np.allclose(rows[:, 0], read_tum(traj).times)
     for name in counters:  # the end of the run hands the window to the map: after the last frame
         last = rows[-1, header.index(name) - 1]
         assert last == counters[name] if name != "landmarks_marginalized" else last <= counters[name], name
     assert np.all(np.diff(rows[:, header.index("observations_used") - 1]) >= 0)
-    assert np.all(rows[:, -11:-8] > 0) and np.any(rows[:, -8:-2] != 0)  # noises in use; offsets estimated
+    assert np.all(rows[:, -14:-11] > 0) and np.any(rows[:, -11:-5] != 0)  # noises in use; offsets estimated
+    # the sensor's forward position estimated (the default), the other two as configured
+    assert np.any(rows[:, -3] != 0) and np.all(rows[:, -2:] == 0)
     # each line's innovation rows are its frame's own: 3 per observation that frame's update used
     used = rows[:, header.index("observations_used") - 1]
-    ratio, inn_rows = rows[:, -2], rows[:, -1]
+    ratio, inn_rows = rows[:, -5], rows[:, -4]
     assert np.array_equal(inn_rows, 3 * np.diff(used, prepend=0))
     assert np.all((ratio > 0) == (inn_rows > 0)) and np.any(inn_rows > 0)
     # the run's ratio is the frames' ratios weighted by their rows

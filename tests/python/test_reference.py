@@ -175,7 +175,7 @@ def test_reference_agrees_on_moving_tracks(build_dir, tmp_path, monkeypatch):
     assert compare_tool.main([str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE)]) == 1
 
 
-@pytest.mark.parametrize("seed,steps", [(2, 200)])
+@pytest.mark.parametrize("seed,steps", [(3, 300)])
 def test_reference_agrees_on_tracks_drifting_against_the_velocities(build_dir, tmp_path, monkeypatch, seed, steps):
     """The same kind of drive: a track whose summed two-view residuals drift against the velocities'
     motion is broken and then neither used nor admitted while its id lasts, in the reference too, and
@@ -244,6 +244,40 @@ def test_reference_agrees_on_sparse_frames_with_a_velocity_sensor_lever_arm(buil
         return q + np.diag(self.P)[6:12] * self.step_t * self.step_t
 
     monkeypatch.setattr(vl_reference.Filter, "expected_motion_error", linear_noise_alone)
+    args = [str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", "60"]
+    assert compare_tool.main([*args, "--config", str(ini)]) == 1
+
+
+def test_reference_agrees_on_the_velocity_sensor_position_as_a_state(build_dir, tmp_path, monkeypatch):
+    """On a sparse drive whose velocity sensor is 1.8 m ahead of the IMU (vislam-sim --velocity-sensor,
+    5 observations a frame), its position estimated forward and sideways (velocity_sensor_std_x, _y):
+    the parameters' columns of the prediction and the two-view matching's share of the position's
+    error agree with the reference, and both matter (with the position not estimated in the reference
+    alone, or its share left out of the expected motion error, the poses move)."""
+    from reference import compare as compare_tool
+    from reference import vl_reference
+    log = tmp_path / "sensor.lcmlog"
+    subprocess.run([str(build_dir / "bin" / "vislam-sim"), "--max-observations", "5", "--steps", "60", "--seed", "4",
+                    "--pixel-noise", "0.3", "--velocity-sensor", "1.8,0,0", "--out", str(log), "--truth",
+                    str(tmp_path / "truth.tum")], check=True, capture_output=True)
+    ini = tmp_path / "sensor.ini"
+    ini.write_text("[estimator]\nvelocity_sensor_std_x = 2\nvelocity_sensor_std_y = 1\n")
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "60", log=log)
+    assert_agrees(rc, fig, 60)
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "60", "--set", "velocity_sensor_std_x=0",
+                      "--set", "velocity_sensor_std_y=0", log=log)
+    assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
+    assert rc == 1
+
+    def offsets_alone(self):
+        self.sensor_estimated, kept = False, self.sensor_estimated
+        try:
+            return expected(self)
+        finally:
+            self.sensor_estimated = kept
+
+    expected = vl_reference.Filter.expected_motion_error
+    monkeypatch.setattr(vl_reference.Filter, "expected_motion_error", offsets_alone)
     args = [str(log), "--build-dir", str(build_dir), "--tolerance", str(TOLERANCE), "--max-steps", "60"]
     assert compare_tool.main([*args, "--config", str(ini)]) == 1
 

@@ -28,7 +28,7 @@ from vislam_tools import channels
 from vislam_tools.geometry import hat3, rot_to_quat
 from vislam_tools.lcmtypes import load, load_lcm
 
-CORE_DIM = 12                # rho, phi, linear offset, angular offset
+CORE_DIM = 15                # rho, phi, linear offset, angular offset, velocity sensor position
 MIN_CAMERA_DEPTH = 1e-3      # m; a point nearer than this in front of the camera is "behind" it
 MIN_ROWS_FOR_REASSOCIATION = 8
 RANSAC_MIN_CONSENSUS = 2     # a hypothesis supports its own row: a consensus needs another
@@ -364,6 +364,7 @@ class Filter:
         self.cfg, self.cal = cfg, cal
         self.R, self.p = np.eye(3), np.zeros(3)
         self.b_v, self.b_w = np.zeros(3), np.zeros(3)  # velocity input offsets
+        self.s = np.array([cfg[f"velocity_sensor_{a}"] for a in "xyz"], float)  # the sensor's position
         self.L = np.zeros((0, 3))                         # window landmarks, world points
         self.slots = []
         self.pending = []
@@ -371,6 +372,8 @@ class Filter:
         if cfg["estimate_input_offsets"]:
             self.P[6:9, 6:9] = np.eye(3) * cfg["linear_offset_prior"] ** 2
             self.P[9:12, 9:12] = np.eye(3) * cfg["angular_offset_prior"] ** 2
+        self.P[12:15, 12:15] = np.diag([cfg[f"velocity_sensor_std_{a}"] ** 2 for a in "xyz"])
+        self.sensor_estimated = bool(np.any(np.diag(self.P[12:15, 12:15]) > 0.0))
         self.var_v = cfg["linear_velocity"] ** 2
         self.var_w = cfg["angular_velocity"] ** 2
         self.var_w_reopened = REOPEN_RATIO * self.var_w  # the angular variance the offsets were last reopened for
@@ -380,6 +383,7 @@ class Filter:
         self.rows_evidence = 0.0    # observations it averages over
         self.step_t2 = 0.0          # s^2: sum of tau^2 x noise share since the last frame
         self.step_t = 0.0           # s: sum of tau since the last frame
+        self.step_turn = np.zeros(3)  # rad: sum of tau x the corrected angular velocity since then
         self.prev_repeated = False  # the previous frame repeated the one before it
         self.velocity_matched = False
         self.moment_num = [0.0, 0.0]  # per block: sum of w a (seen - c), w = 1 / (2 tr M^2), a = 3 sum tau^2
@@ -416,15 +420,19 @@ class Filter:
         landmark i. P <- Phi P Phi^T + G Q G^T + Q_b, Phi = I + G E^T, with Q the configured (or
         adapted) variance of one sample times noise_share. A velocity sensor at p in the body frame
         (velocity_sensor_*) sees v + w x p: the body twist is T (u - b) with T = [I hat(p); 0 I],
-        and G becomes G T."""
+        and G becomes G T. An error dp of the sensor position moves the body twist by -hat(w) dp
+        on its linear rows: the parameters (offsets, then sensor position) enter through
+        Gt = [G T, G_lin hat(w)], Phi = I + Gt E^T."""
         tau = (utime - self.state_utime) * 1e-6
         if tau <= 0.0:
             return
         linear = self.held_v if linear is None else linear
         angular = self.held_w if angular is None else angular
         xi = tau * np.concatenate([linear - self.b_v, angular - self.b_w])
-        sensor = np.array([self.cfg[f"velocity_sensor_{a}"] for a in "xyz"], float)
+        sensor = self.s
         lever = bool(np.any(sensor != 0.0))
+        self.step_turn = self.step_turn + xi[3:]
+        w = xi[3:] / tau
         if lever:
             xi[:3] += hat3(sensor) @ xi[3:]
         dR, dp = se3_exp(xi)
@@ -433,17 +441,26 @@ class Filter:
         self.state_utime = utime
 
         Gp = -tau * se3_adjoint(self.R, self.p) @ se3_right_jacobian(xi)
+        Gs = Gp[:, 0:3] @ hat3(w)
         if lever:
             Gp[:, 3:6] += Gp[:, 0:3] @ hat3(sensor)
+        offsets = self.cfg["estimate_input_offsets"]
+        Gt = np.zeros((6, 9))
+        if offsets:
+            Gt[:, :6] = Gp
+        if self.sensor_estimated:
+            Gt[:, 6:] = Gs
         G = np.zeros((self.n, 6))
-        G[:6] = Gp
+        Gtn = np.zeros((self.n, 9))
+        G[:6], Gtn[:6] = Gp, Gt
         for i, l in enumerate(self.L):
             G[CORE_DIM + 3 * i:CORE_DIM + 3 * i + 3] = hat3(l) @ Gp[3:6]
+            Gtn[CORE_DIM + 3 * i:CORE_DIM + 3 * i + 3] = hat3(l) @ Gt[3:6]
         P = self.P
-        if self.cfg["estimate_input_offsets"]:
-            # Phi P Phi^T = P + G M^T + M G^T with M = P E + G (E^T P E) / 2, E the offset columns.
-            M = P[:, 6:12] + G @ (0.5 * P[6:12, 6:12])
-            P = P + G @ M.T + M @ G.T
+        if offsets or self.sensor_estimated:
+            # Phi P Phi^T = P + Gt M^T + M Gt^T with M = P E + Gt (E^T P E) / 2, E the parameter columns.
+            M = P[:, 6:15] + Gtn @ (0.5 * P[6:15, 6:15])
+            P = P + Gtn @ M.T + M @ Gtn.T
         Q = np.diag([self.var_v * noise_share] * 3 + [self.var_w * noise_share] * 3)
         self.step_t2 += tau * tau * noise_share
         self.step_t += tau
@@ -544,6 +561,7 @@ class Filter:
         self.contradicted = contradicted
         self.prev_drift = self.drift
         self.step_t2 = self.step_t = 0.0
+        self.step_turn = np.zeros(3)
         self.prev_repeated = repeated
         self.prev_frame = frame
         frame_dt = (utime - self.last_frame_utime) * 1e-6 if self.last_frame_utime is not None else 0.0
@@ -904,6 +922,7 @@ class Filter:
         self.p = dR @ self.p + dp
         self.b_v = self.b_v + dx[6:9]
         self.b_w = self.b_w + dx[9:12]
+        self.s = self.s + dx[12:15]
         self.L = self.L @ dR.T + dx[CORE_DIM:].reshape(-1, 3) @ Jl.T
         for r in rows:
             self.slots[r.slot].updates += 1
@@ -1031,13 +1050,19 @@ class Filter:
 
     def expected_motion_error(self):
         """The motion error the filter expects over the interval, per body axis: the diagonal of
-        T Q T^T, Q the input noise (the velocity variance x sum tau^2) plus the offsets' block of P x
-        (sum tau)^2, T = [I hat(p); 0 I] the input map of a velocity sensor at p (identity at the
-        origin), through which the angular noise and offsets reach the linear motion."""
+        T Q T^T, Q the input noise (the velocity variance x sum tau^2) plus the parameters' error
+        J P_tt J^T, J = [sum tau I, (hat(sum tau w); 0)], T = [I hat(p); 0 I] the input map of a
+        velocity sensor at p (identity at the origin), through which the angular noise and offsets
+        reach the linear motion."""
         Q = np.diag([self.var_v * self.step_t2] * 3 + [self.var_w * self.step_t2] * 3)
         if self.cfg["estimate_input_offsets"]:
             Q = Q + self.P[6:12, 6:12] * self.step_t * self.step_t
-        sensor = np.array([self.cfg[f"velocity_sensor_{a}"] for a in "xyz"], float)
+        if self.sensor_estimated:
+            Js = np.zeros((6, 3))
+            Js[:3] = hat3(self.step_turn)
+            cross = self.step_t * Js @ self.P[12:15, 6:12]
+            Q = Q + Js @ self.P[12:15, 12:15] @ Js.T + cross + cross.T
+        sensor = self.s
         if np.any(sensor != 0.0):
             T = np.eye(6)
             T[:3, 3:] = hat3(sensor)

@@ -226,13 +226,14 @@ static void write_frame_stats_header(FILE *f)
     VL_COUNTERS(VL_FRAME_STATS_NAME_)
 #undef VL_FRAME_STATS_NAME_
     fputs(" linear_velocity_noise angular_velocity_noise pixel_noise linear_offset_x linear_offset_y linear_offset_z"
-          " angular_offset_x angular_offset_y angular_offset_z innovation_ratio innovation_rows\n",
+          " angular_offset_x angular_offset_y angular_offset_z innovation_ratio innovation_rows"
+          " velocity_sensor_x velocity_sensor_y velocity_sensor_z\n",
           f);
 }
 
 /* One frame-stats line: the time as the TUM writer prints it, the running core counters, the
-   noises in use and the estimated input offsets after the frame's update, and the update's
-   normalized innovation squared per row with its rows. */
+   noises in use and the estimated input offsets after the frame's update, the update's
+   normalized innovation squared per row with its rows, and the velocity sensor's estimated position. */
 static void write_frame_stats_line(FILE *f, int64_t utime, const vl_counters_t *c, const vl_pose_t *pose)
 {
     write_time(f, utime);
@@ -248,7 +249,13 @@ static void write_frame_stats_line(FILE *f, int64_t utime, const vl_counters_t *
         vl_cli_format_double(v, sizeof(v), tail[i]);
         fprintf(f, " %s", v);
     }
-    fprintf(f, " %u\n", (unsigned)pose->innovation_rows);
+    fprintf(f, " %u", (unsigned)pose->innovation_rows);
+    for (int i = 0; i < 3; ++i) {
+        char v[VL_CLI_DOUBLE_MAX];
+        vl_cli_format_double(v, sizeof(v), pose->velocity_sensor[i]);
+        fprintf(f, " %s", v);
+    }
+    fputc('\n', f);
 }
 
 /* Session sink: one TUM line (and covariance and frame-stats lines) per frame the core used. */

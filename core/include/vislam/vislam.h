@@ -54,8 +54,10 @@ extern "C" {
 #error "vislam needs a compiler with __attribute__((aligned))"
 #endif
 
-/** Pose (6) and velocity-input offsets (6) lead the state vector. */
-#define VL_CORE_DIM 12
+/** Pose (6), velocity-input offsets (6) and the velocity sensor's position (3) lead the state vector. */
+#define VL_CORE_DIM 15
+/** The core's parameters: the states after the pose (offsets and sensor position), constant but for the offsets' walk. */
+#define VL_PARAM_DIM (VL_CORE_DIM - 6)
 /** Largest joint state dimension. */
 #define VL_STATE_DIM_MAX (VL_CORE_DIM + 3 * VL_MAX_LANDMARKS)
 /** Rows of a compressed stereo observation: u_left, mean v, u_right. */
@@ -217,6 +219,7 @@ typedef struct {
     double angular_velocity[3]; /**< last offset-corrected body angular velocity, rad/s */
     double linear_offset[3];    /**< estimated linear velocity offset, m/s */
     double angular_offset[3];   /**< estimated angular velocity offset, rad/s */
+    double velocity_sensor[3];  /**< estimated position of the linear velocity sensor in the body frame, m */
     double linear_velocity_noise;  /**< m/s, per-sample noise std in use (adapted with adaptive_noise) */
     double angular_velocity_noise; /**< rad/s, likewise */
     double pixel_noise;            /**< px, likewise */
@@ -362,14 +365,14 @@ typedef struct {
  * The prediction's effect on P not yet applied beyond the core block (vl_predict.c).
  * Between updates the landmarks do not move and every step's input Jacobian is
  * G = B Gp with B fixed, so K steps act on P as P <- (I + U Y E^T) P (...)^T + U A U^T
- * with U = [B, E] (E selecting the offsets): Y and A are the steps' transition and
+ * with U = [B, E] (E selecting the parameters): Y and A are the steps' transition and
  * noise in core coordinates, and the core block itself is kept current.
  */
 typedef struct {
-    uint32_t steps;                          /**< prediction steps accumulated since P was last settled */
-    double core0[VL_CORE_DIM * VL_CORE_DIM]; /**< P's core block before the first of them, column-major */
-    double transition[VL_CORE_DIM * 6];      /**< Y: offset columns of the steps' core transition less I, 12 x 6 */
-    double noise[VL_CORE_DIM * VL_CORE_DIM]; /**< A: their noise, carried to the last step, 12 x 12 */
+    uint32_t steps;                                /**< prediction steps accumulated since P was last settled */
+    double core0[VL_CORE_DIM * VL_CORE_DIM];       /**< P's core block before the first of them, column-major */
+    double transition[VL_CORE_DIM * VL_PARAM_DIM]; /**< Y: parameter columns of the steps' core transition less I */
+    double noise[VL_CORE_DIM * VL_CORE_DIM];       /**< A: their noise, carried to the last step */
 } vl_deferred_prediction_t;
 
 /** Capacity of the pending-track table. */
@@ -404,13 +407,14 @@ typedef struct {
     int64_t timeline_last_frame_utime; /**< us, latest frame of the candidate */
     int timeline_have_imu, timeline_have_frame;
 
-    double R[9];              /**< world-from-IMU rotation, row-major */
-    double p[3];              /**< m */
-    double held_linear[3];    /**< raw last linear velocity sample, m/s */
-    double held_angular[3];   /**< raw last angular velocity sample, rad/s */
-    int held_trusted;         /**< the held sample may carry the motion on (not after a divergence it led to) */
-    double offset_linear[3];  /**< m/s */
-    double offset_angular[3]; /**< rad/s */
+    double R[9];               /**< world-from-IMU rotation, row-major */
+    double p[3];               /**< m */
+    double held_linear[3];     /**< raw last linear velocity sample, m/s */
+    double held_angular[3];    /**< raw last angular velocity sample, rad/s */
+    int held_trusted;          /**< the held sample may carry the motion on (not after a divergence it led to) */
+    double offset_linear[3];   /**< m/s */
+    double offset_angular[3];  /**< rad/s */
+    double sensor_position[3]; /**< m, the linear velocity sensor in the body frame (velocity_sensor_*) */
 
     uint32_t num_landmarks;
     vl_landmark_slot_t slots[VL_MAX_LANDMARKS];
@@ -435,6 +439,7 @@ typedef struct {
     double stereo_row_evidence; /**< observations stereo_row_var averages over */
     double step_noise_time2;    /**< s^2: sum of tau^2 x noise share over the prediction steps since the last frame */
     double step_time;           /**< s: sum of tau over the same steps */
+    double step_turn[3];        /**< rad: sum of tau x the corrected angular velocity over the same steps */
     int prev_frame_repeated;    /**< the previous accepted frame repeated the one before it */
     int velocity_matched;       /**< this frame's velocity noise was matched on its two views */
     /** The two-view frames' moment estimate of each velocity variance (linear, angular), as sums
@@ -454,8 +459,8 @@ typedef struct {
     /** The state after the last input that passed the divergence check: where a divergence re-initializes. */
     double sound_R[9];                         /**< world-from-IMU rotation, row-major */
     double sound_p[3];                         /**< m */
-    double sound_offset[6];                    /**< the input offsets: linear m/s, angular rad/s */
-    double sound_P[VL_CORE_DIM * VL_CORE_DIM]; /**< the core block of P (pose and offsets), column-major */
+    double sound_offset[VL_PARAM_DIM];         /**< the parameters: linear offset m/s, angular rad/s, sensor m */
+    double sound_P[VL_CORE_DIM * VL_CORE_DIM]; /**< the core block of P (pose and parameters), column-major */
 
     /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
     uint32_t num_prev_obs;
@@ -552,6 +557,7 @@ vl_status_t vl_config_check(const vl_config_t *cfg);
     X(vl_pose_t, angular_velocity)       \
     X(vl_pose_t, linear_offset)          \
     X(vl_pose_t, angular_offset)         \
+    X(vl_pose_t, velocity_sensor)        \
     X(vl_pose_t, linear_velocity_noise)  \
     X(vl_pose_t, angular_velocity_noise) \
     X(vl_pose_t, pixel_noise)            \

@@ -84,6 +84,15 @@ typedef enum {
       "The same: y.") \
     X("estimator", "velocity_sensor_z", velocity_sensor_z, DOUBLE, 0.0, -100.0, 100.0, 0, "m", \
       "The same: z.") \
+    /* Forward only by default: a lateral lever arm turns the mean yaw rate of a drive into a \
+       forward velocity error, which it then trades with the images' scale (README). */ \
+    X("estimator", "velocity_sensor_std_x", velocity_sensor_std_x, DOUBLE, 2.0, 0.0, 100.0, 0, "m", \
+      "How well velocity_sensor_x is known: the prior std of the sensor position, estimated " \
+      "as a state from the turns (0: known exactly, not estimated).") \
+    X("estimator", "velocity_sensor_std_y", velocity_sensor_std_y, DOUBLE, 0.0, 0.0, 100.0, 0, "m", \
+      "The same: y.") \
+    X("estimator", "velocity_sensor_std_z", velocity_sensor_std_z, DOUBLE, 0.0, 0.0, 100.0, 0, "m", \
+      "The same: z.") \
     X("estimator", "max_propagation_dt", max_propagation_dt, DOUBLE, 0.5, 0.0, DBL_MAX, 1, "s", \
       "A gap between inputs longer than this is counted (time_gaps) and still propagated.") \
     /* 64 observations (192 rows) keep an update at a full window of 128 under 2 ms at p99.9 \
