@@ -14,8 +14,8 @@ that would need one stops the run with ReferenceError.
 
 Notation (README, "The estimator"): the pose T = (R, p) is world-from-IMU; the state is
 [rho, phi, b_v, b_w, rho_1, ..., rho_N] with the invariant error T = exp(xi) T_hat and
-l_i = exp(phi) l_hat_i + J_l(phi) rho_i; the covariance P is (12 + 3N) square. Landmark i's
-block starts at column 12 + 3 i.
+l_i = exp(phi) l_hat_i + J_l(phi) rho_i; the covariance P is (15 + 3N) square. Landmark i's
+block starts at column 15 + 3 i.
 """
 
 import math

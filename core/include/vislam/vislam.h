@@ -706,7 +706,7 @@ size_t vl_counters_list(const vl_counters_t *counters, vl_counter_entry_t out[VL
 /** Landmarks now in the window. */
 uint32_t vl_window_size(const vl_estimator_t *e);
 
-/** Dimension of the joint state now (12 + 3 * landmarks). */
+/** Dimension of the joint state now (VL_CORE_DIM + 3 * landmarks). */
 uint32_t vl_state_dim(const vl_estimator_t *e);
 
 /** Unit quaternion [w, x, y, z] (w >= 0, so equal rotations print equal) of a row-major rotation. */

@@ -99,7 +99,7 @@ typedef enum {
        on 0034, for a few decimetres of ATE on 0027 (README). */ \
     X("estimator", "max_update_observations", max_update_observations, UINT32, 64, 0, UINT32_MAX, 0, "", \
       "Most observations one update uses (0: all). A time bound: the update costs about " \
-      "(12 + 3 landmarks)^2 x 3 observations; the inliers left out (see rotate_deferred) stay in " \
+      "(15 + 3 landmarks)^2 x 3 observations; the inliers left out (see rotate_deferred) stay in " \
       "the window for later frames.") \
     /* 18.5 Mflop with rotate_deferred: the costliest step of 0034 at 1.96x the median step's \
        work, 0027 within 0.05 m (from the start and over 8 starts; README, Bounded work per step). */ \
