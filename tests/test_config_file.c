@@ -509,6 +509,7 @@ void test_vl_config_default_equals_documented_values(void)
     TEST_ASSERT_EQUAL_DOUBLE(0.01, cfg.angular_offset_prior);
     TEST_ASSERT_EQUAL_DOUBLE(1e-3, cfg.linear_offset_walk);
     TEST_ASSERT_EQUAL_DOUBLE(1e-4, cfg.angular_offset_walk);
+    TEST_ASSERT_EQUAL_DOUBLE(100.0, cfg.offset_correlation_time);
     TEST_ASSERT_EQUAL_DOUBLE(1.5, cfg.pixel_noise);
     TEST_ASSERT_EQUAL_DOUBLE(0.35, cfg.repeat_anchor_noise);
     TEST_ASSERT_EQUAL_DOUBLE(0.2, cfg.repeat_track_walk);
@@ -540,8 +541,8 @@ void test_vl_config_default_equals_documented_values(void)
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(I, cfg.calibration.cam_T_imu, 16);
     TEST_ASSERT_NULL(cfg.landmark_sink);
     TEST_ASSERT_NULL(cfg.log);
-    /* Every member before the calibration is a row of the table: 44 rows, and they tile it. */
-    TEST_ASSERT_EQUAL_UINT(44, NUM_ROWS);
+    /* Every member before the calibration is a row of the table: 45 rows, and they tile it. */
+    TEST_ASSERT_EQUAL_UINT(45, NUM_ROWS);
     size_t end = 0;
     for (size_t i = 0; i < NUM_ROWS; ++i) {
         TEST_ASSERT_TRUE_MESSAGE(k_rows[i].offset >= end, k_rows[i].key);

@@ -117,13 +117,20 @@ static void lift(vl_mode_t mode, const double *M, int cols, double *out)
 }
 
 /*
- * One step, densely: G = B Gp, Phi = I + B Gt E^T (parameters), P <- Phi P Phi^T + G Q G^T + E W E^T
- * (W on the offsets).
+ * One step, densely: G = B Gp, Phi = I + B Gt E^T (parameters) with the offsets' rows scaled by a,
+ * P <- Phi P Phi^T + G Q G^T + (1 - a^2) P_bb + E W E^T (P_bb the offsets' block before the step,
+ * W on the offsets).
  */
 static void dense_step(vl_mode_t mode, const double Gp[36], const double *Gt, const double q[6], const double *w,
-                       double *P)
+                       double a, double *P)
 {
     static double G[N * 6], Gtn[N * VL_PARAM_DIM], Phi[N * N], T[N * N], PhiT[N * N];
+    double Pbb[36];
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j < 6; ++j) {
+            Pbb[6 * i + j] = P[N * (6 + i) + 6 + j];
+        }
+    }
     lift(mode, Gp, 6, G);
     if (Gt != NULL) {
         lift(mode, Gt, VL_PARAM_DIM, Gtn);
@@ -133,6 +140,9 @@ static void dense_step(vl_mode_t mode, const double Gp[36], const double *Gt, co
             Phi[N * i + j] = (i == j) ? 1.0 : 0.0;
             if (Gt != NULL && j >= 6 && j < VL_CORE_DIM) {
                 Phi[N * i + j] += Gtn[VL_PARAM_DIM * i + (j - 6)];
+            }
+            if (Gt != NULL && i >= 6 && i < 12) {
+                Phi[N * i + j] *= a;
             }
         }
     }
@@ -148,6 +158,11 @@ static void dense_step(vl_mode_t mode, const double Gp[36], const double *Gt, co
             for (int k = 0; k < 6; ++k) {
                 P[N * i + j] += G[6 * i + k] * q[k] * G[6 * j + k];
             }
+        }
+    }
+    for (int i = 0; i < 6 && Gt != NULL; ++i) {
+        for (int j = 0; j < 6; ++j) {
+            P[N * (6 + i) + 6 + j] += (1.0 - a * a) * Pbb[6 * i + j];
         }
     }
     for (int k = 0; k < 6 && w != NULL; ++k) {
@@ -169,7 +184,7 @@ static double relative_error(const double *Pref, int dim)
     return err / scale;
 }
 
-static void check_deferred_matches_sequential(vl_mode_t mode, int offsets, int sensor, int steps)
+static void check_deferred_matches_sequential(vl_mode_t mode, int offsets, int sensor, int steps, double a)
 {
     static double Pref[N * N];
     random_state(mode, offsets, sensor, Pref);
@@ -187,8 +202,8 @@ static void check_deferred_matches_sequential(vl_mode_t mode, int offsets, int s
             w[i] = 0.001 * (1.5 + uniform());
         }
         const double *coupled = (offsets || sensor) ? Gt : NULL;
-        dense_step(mode, Gp, coupled, q, offsets ? w : NULL, Pref);
-        vl_predict_defer(&est, Gp, coupled, q, offsets ? w : NULL);
+        dense_step(mode, Gp, coupled, q, offsets ? w : NULL, a, Pref);
+        vl_predict_defer(&est, Gp, coupled, q, offsets ? w : NULL, a);
         TEST_ASSERT_EQUAL_UINT32((uint32_t)k + 1u, est.deferred.steps);
         /* The core block (what vl_get_pose reads) is current between updates. */
         TEST_ASSERT_TRUE(relative_error(Pref, VL_CORE_DIM) < 1e-12);
@@ -226,33 +241,43 @@ static void check_deferred_matches_sequential(vl_mode_t mode, int offsets, int s
 
 void test_slam_with_offsets(void)
 {
-    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 0, 1);
-    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 0, 2);
-    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 0, 7);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 0, 1, 1.0);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 0, 2, 1.0);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 1, 0, 7, 1.0);
 }
 
 void test_slam_without_offsets(void)
 {
-    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 0, 1);
-    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 0, 2);
-    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 0, 7);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 0, 1, 1.0);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 0, 2, 1.0);
+    check_deferred_matches_sequential(VL_MODE_SLAM, 0, 0, 7, 1.0);
 }
 
 void test_slam_with_the_sensor_position(void)
 {
     for (int offsets = 0; offsets <= 1; ++offsets) {
-        check_deferred_matches_sequential(VL_MODE_SLAM, offsets, 1, 1);
-        check_deferred_matches_sequential(VL_MODE_SLAM, offsets, 1, 2);
-        check_deferred_matches_sequential(VL_MODE_SLAM, offsets, 1, 7);
+        check_deferred_matches_sequential(VL_MODE_SLAM, offsets, 1, 1, 1.0);
+        check_deferred_matches_sequential(VL_MODE_SLAM, offsets, 1, 2, 1.0);
+        check_deferred_matches_sequential(VL_MODE_SLAM, offsets, 1, 7, 1.0);
+    }
+}
+
+/* The offsets' correlations fading (offset_correlation_time): D P D plus their block refilled. */
+void test_slam_with_the_offsets_decaying(void)
+{
+    for (int sensor = 0; sensor <= 1; ++sensor) {
+        check_deferred_matches_sequential(VL_MODE_SLAM, 1, sensor, 1, 0.7);
+        check_deferred_matches_sequential(VL_MODE_SLAM, 1, sensor, 2, 0.7);
+        check_deferred_matches_sequential(VL_MODE_SLAM, 1, sensor, 7, 0.9);
     }
 }
 
 void test_mapping_with_and_without_offsets(void)
 {
     for (int offsets = 0; offsets <= 1; ++offsets) {
-        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, offsets, 1);
-        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, offsets, 2);
-        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, offsets, 7);
+        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, offsets, 1, offsets ? 0.8 : 1.0);
+        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, offsets, 2, 1.0);
+        check_deferred_matches_sequential(VL_MODE_MAPPING, offsets, offsets, 7, offsets ? 0.8 : 1.0);
     }
 }
 
@@ -325,7 +350,7 @@ void test_a_stale_read_stops_at_the_assert(void)
     static double Pref[N * N];
     random_state(VL_MODE_SLAM, 1, 0, Pref);
     const double Gp[36] = {0.1}, q[6] = {0.01, 0.01, 0.01, 0.01, 0.01, 0.01};
-    vl_predict_defer(&est, Gp, NULL, q, NULL);
+    vl_predict_defer(&est, Gp, NULL, q, NULL, 1.0);
     fflush(stdout);
     const pid_t child = fork();
     TEST_ASSERT_TRUE(child >= 0);
@@ -427,6 +452,7 @@ int main(void)
     RUN_TEST(test_slam_with_offsets);
     RUN_TEST(test_slam_without_offsets);
     RUN_TEST(test_slam_with_the_sensor_position);
+    RUN_TEST(test_slam_with_the_offsets_decaying);
     RUN_TEST(test_mapping_with_and_without_offsets);
     RUN_TEST(test_samples_defer_and_a_frame_settles);
     RUN_TEST(test_a_stale_read_stops_at_the_assert);

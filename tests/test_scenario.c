@@ -9,6 +9,7 @@
 
 #include "unity.h"
 #include "vislam/vislam.h"
+#include "vl_estimator_internal.h"
 #include "vl_se3.h"
 #include "vl_sim.h"
 
@@ -553,6 +554,35 @@ void test_the_velocity_sensor_position_is_learned_from_the_turns(void)
     TEST_ASSERT_TRUE(learned.rms_position_error < known_wrong.rms_position_error);
 }
 
+/*
+ * The offsets' correlations fade (offset_correlation_time): the world heading's covariance with
+ * the angular offset, which a constant offset would grow with the time driven (a correction of
+ * the offset then turning the whole window about the start), stays near the correlation time
+ * times the offset's variance.
+ */
+static double heading_per_offset(double correlation_time)
+{
+    vl_sim_config_t sc;
+    vl_config_t cfg;
+    scenario(47, 600, 0.5, &sc, &cfg);
+    sc.points_per_meter *= 0.06;
+    cfg.offset_correlation_time = correlation_time;
+    static run_result_t res;
+    run(&sc, &cfg, &res);
+    /* the core block is current between frames */
+    const uint32_t phi_z = VL_IDX_PHI + 2u, b_z = VL_IDX_OFFSET_ANG + 2u;
+    return fabs(*vl_P_at(&est, phi_z, b_z)) / *vl_P_at(&est, b_z, b_z);
+}
+
+void test_the_offsets_correlations_fade(void)
+{
+    const double fading = heading_per_offset(5.0), constant = heading_per_offset(0.0);
+    printf("after 60 s: heading covariance / angular offset variance %.1f s fading over 5 s, %.1f s constant\n", fading,
+           constant);
+    TEST_ASSERT_TRUE(fading < 2.0 * 5.0);
+    TEST_ASSERT_TRUE(constant > 4.0 * fading);
+}
+
 /* The 100-frame drive of seed 3 at 0.3 px with at most max_observations a frame: a noise prior's
  * first hundred frames on a sparse drive. */
 static void sparse_hundred_frames(uint32_t max_observations, vl_sim_config_t *sc, vl_config_t *cfg)
@@ -802,6 +832,7 @@ int main(void)
     RUN_TEST(test_sparse_frames_match_the_velocity_noise_on_two_views);
     RUN_TEST(test_sparse_frames_expect_the_lever_arms_share);
     RUN_TEST(test_the_velocity_sensor_position_is_learned_from_the_turns);
+    RUN_TEST(test_the_offsets_correlations_fade);
     RUN_TEST(test_sparse_frames_match_the_pixel_noise);
     RUN_TEST(test_a_sparse_pixel_prior_far_over_the_rows_comes_down);
     RUN_TEST(test_a_sparse_velocity_prior_far_too_small_climbs);

@@ -261,7 +261,8 @@ extern "C" void vl_la_configure(void)
 }
 
 extern "C" void vl_la_propagate(double *Pbuf, int ld, int n, const double *Gbuf, const double *Gtbuf,
-                                const double noise_var[6], const double offset_var[6], double *work)
+                                const double noise_var[6], const double offset_var[6], double a, const double R[36],
+                                double *work)
 {
     no_heap_scope guard;
     MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
@@ -284,6 +285,18 @@ extern "C" void vl_la_propagate(double *Pbuf, int ld, int n, const double *Gbuf,
     Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 6>> N(work, n, 6);
     N.noalias() = G * Eigen::Map<const Eigen::Matrix<double, 6, 1>>(noise_var).cwiseSqrt().asDiagonal();
     P.selfadjointView<Eigen::Lower>().rankUpdate(N);
+    if (Gtbuf != nullptr && a != 1.0) {
+        /* D P D + (1 - a^2) R on the lower triangle: the offsets' rows against the pose, their
+         * columns against the states after them, and their own block. */
+        P.block(6, 0, 6, 6) *= a;
+        P.block(12, 6, n - 12, 6) *= a;
+        const Eigen::Map<const Eigen::Matrix<double, 6, 6>> Rb(R);
+        for (Eigen::Index j = 0; j < 6; ++j) {
+            for (Eigen::Index i = j; i < 6; ++i) {
+                P(6 + i, 6 + j) = a * a * P(6 + i, 6 + j) + (1.0 - a * a) * Rb(i, j);
+            }
+        }
+    }
     if (offset_var != nullptr) {
         P.diagonal().segment<6>(6) += Eigen::Map<const Eigen::Matrix<double, 6, 1>>(offset_var);
     }

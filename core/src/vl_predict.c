@@ -83,8 +83,11 @@ static void advance(vl_estimator_t *e, int64_t utime, double tau, const double x
             memcpy(&Gt[VL_PARAM_DIM * i], &Gp[6 * i], 6 * sizeof(double));
         }
     }
-    vl_work_predict(e, coupled);
-    vl_predict_defer(e, Gp, coupled ? Gt : NULL, noise_var, offset_var);
+    /* The offsets' correlations fade over offset_correlation_time (vl_la_propagate). */
+    const double tc = e->cfg.offset_correlation_time;
+    const double decay = (coupled && offset_var != NULL && tc > 0.0) ? exp(-tau / tc) : 1.0;
+    vl_work_predict(e, coupled, decay != 1.0);
+    vl_predict_defer(e, Gp, coupled ? Gt : NULL, noise_var, offset_var, decay);
 }
 
 /*
@@ -170,14 +173,15 @@ int vl_predict_lever_term(const vl_estimator_t *e, const double w[3], double out
  * zero: the sequential recursion exactly, in exact arithmetic. So a step
  * propagates the core block, A and Y (O(1)); vl_predict_settle applies the rest.
  *
- * A diagonal per-step parameter transition a (a Gauss-Markov offset; a = 1 here)
- * fits the same accumulators: F = [I Gt; 0 diag(a)], the core block and A
- * propagate with it, and Y <- (F (I + [0 Y])) - I in its parameter columns, i.e.
- * Y_pose += Gt (I + Y_param) and Y_param <- diag(a) (I + Y_param) - I;
+ * The offsets' decay a per step (their correlations fading, offset_correlation_time)
+ * makes the parameters' transition diagonal, D = diag(a I6, I3), and fits the same
+ * accumulators: F = [I Gt; 0 D], the core block and A propagate with it (with the
+ * offsets' refill, vl_la_propagate), and Y <- (F (I + [0 Y])) - I in its parameter
+ * columns, i.e. Y_pose += Gt (I + Y_param) and Y_param <- D (I + Y_param) - I;
  * vl_la_settle applies I + U Y E^T whatever Y's parameter rows hold.
  */
 void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double Gt[6 * VL_PARAM_DIM],
-                      const double noise_var[6], const double offset_var[6])
+                      const double noise_var[6], const double offset_var[6], double decay)
 {
     vl_deferred_prediction_t *d = &e->deferred;
     if (d->steps == 0) {
@@ -198,12 +202,28 @@ void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double Gt[6 
         }
     }
     const double *coupling = Gt != NULL ? Gc : NULL;
-    vl_la_propagate(e->P, VL_LD, VL_CORE_DIM, G, coupling, noise_var, offset_var, work);
-    vl_la_propagate(d->noise, VL_CORE_DIM, VL_CORE_DIM, G, coupling, noise_var, offset_var, work);
+    double R[36]; /* the offsets' block before the step, which the decay refills */
+    for (uint32_t j = 0; j < 6; ++j) {
+        memcpy(&R[6 * j], &e->P[(size_t)(VL_IDX_OFFSET_LIN + j) * VL_LD + VL_IDX_OFFSET_LIN], 6 * sizeof(double));
+    }
+    vl_la_propagate(e->P, VL_LD, VL_CORE_DIM, G, coupling, noise_var, offset_var, decay, R, work);
+    vl_la_propagate(d->noise, VL_CORE_DIM, VL_CORE_DIM, G, coupling, noise_var, offset_var, decay, R, work);
     if (Gt != NULL) {
+        /* Y_pose += Gt (I + Y_param); Y_param <- D (I + Y_param) - I. */
+        double *Y = d->transition;
         for (int j = 0; j < VL_PARAM_DIM; ++j) {
             for (int i = 0; i < 6; ++i) {
-                d->transition[VL_CORE_DIM * j + i] += Gt[VL_PARAM_DIM * i + j];
+                double v = Gt[VL_PARAM_DIM * i + j];
+                for (int k = 0; k < VL_PARAM_DIM; ++k) {
+                    v += Gt[VL_PARAM_DIM * i + k] * Y[VL_CORE_DIM * j + 6 + k];
+                }
+                Y[VL_CORE_DIM * j + i] += v;
+            }
+        }
+        for (int j = 0; j < VL_PARAM_DIM; ++j) {
+            for (int k = 0; k < 6; ++k) { /* the offsets' rows */
+                const double one = (k == j) ? 1.0 : 0.0;
+                Y[VL_CORE_DIM * j + 6 + k] = decay * (one + Y[VL_CORE_DIM * j + 6 + k]) - one;
             }
         }
     }

@@ -60,10 +60,11 @@ void vl_predict_silence_to(vl_estimator_t *e, int64_t utime);
  * and the parameters' pose rows Gt (6 x VL_PARAM_DIM row-major: the offsets'
  * columns, then the sensor position's; NULL when no parameter is estimated);
  * the landmark rows wait for vl_predict_settle. offset_var, the offsets' walk,
- * is NULL when the offsets are not estimated.
+ * is NULL when the offsets are not estimated; decay (1: none) is the factor by
+ * which the offsets' correlations with every other state fade over the step.
  */
 void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double Gt[6 * VL_PARAM_DIM],
-                      const double noise_var[6], const double offset_var[6]);
+                      const double noise_var[6], const double offset_var[6], double decay);
 
 /**
  * Applies the deferred prediction to the whole of P, which then equals the

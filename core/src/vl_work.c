@@ -61,22 +61,28 @@ void vl_work_begin(vl_estimator_t *e)
     memset(&e->work, 0, sizeof(e->work));
 }
 
-/* vl_la_propagate on n states: one symmetric rank-6 update of the lower triangle, and two
- * rank-VL_PARAM_DIM ones when the parameters couple in. */
-static uint64_t propagate_flops(uint64_t n, int coupled)
+/* vl_la_propagate on n states: one symmetric rank-6 update of the lower triangle, two
+ * rank-VL_PARAM_DIM ones when the parameters couple in, and the offsets' decay (their rows
+ * scaled, their block refilled). */
+static uint64_t propagate_flops(uint64_t n, int coupled, int decaying)
 {
     const uint64_t np = VL_PARAM_DIM;
     uint64_t flops = 6u * n + 6u * n * (n + 1u);
     if (coupled) { /* M = P E + Gt Pbb / 2, Gt +- M */
         flops += 2u * np * n * (n + 1u) + 2u * np * np * n + 3u * np * n;
     }
+    if (decaying) {
+        flops += 6u * n + 4u * 21u;
+    }
     return flops;
 }
 
-void vl_work_predict(vl_estimator_t *e, int coupled)
+void vl_work_predict(vl_estimator_t *e, int coupled, int decaying)
 {
-    /* The pose, then P's core block and the deferred noise (VL_CORE_DIM states each): O(1). */
-    const uint64_t flops = VL_WORK_POSE + 2u * propagate_flops(VL_CORE_DIM, coupled);
+    /* The pose, then P's core block and the deferred noise (VL_CORE_DIM states each), and the
+     * transition's parameter rows: O(1). */
+    const uint64_t transition = coupled ? 2u * 6u * VL_PARAM_DIM * (VL_PARAM_DIM + 1u) : 0u;
+    const uint64_t flops = VL_WORK_POSE + 2u * propagate_flops(VL_CORE_DIM, coupled, decaying) + transition;
     add(e, &e->work.predict, flops);
     if (e->work.state_dim == 0) {
         e->work.state_dim = VL_CORE_DIM + 3u * e->num_landmarks;

@@ -19,8 +19,8 @@ uint64_t vl_work_joint_update(uint32_t n_states, uint32_t k_obs);
 void vl_work_begin(vl_estimator_t *e);
 
 /** A prediction step: the pose, P's core block and the deferred noise (O(1) in the state dimension);
- * coupled: the parameters (offsets, sensor position) couple in. */
-void vl_work_predict(vl_estimator_t *e, int coupled);
+ * coupled: the parameters (offsets, sensor position) couple in; decaying: the offsets' correlations fade. */
+void vl_work_predict(vl_estimator_t *e, int coupled, int decaying);
 
 /** The deferred prediction applied to an n-state P (moving: the landmark block changes, not mapping). */
 void vl_work_settle(vl_estimator_t *e, uint32_t n, int moving);

@@ -282,6 +282,20 @@ def test_reference_agrees_on_the_velocity_sensor_position_as_a_state(build_dir, 
     assert compare_tool.main([*args, "--config", str(ini)]) == 1
 
 
+def test_reference_agrees_on_the_offsets_correlations_fading(build_dir, tmp_path):
+    """The offsets' correlations with the other states fade over offset_correlation_time (here 5 s,
+    so that 50 frames of the sample see it clearly): the reference does the same, and it matters
+    (with them never fading in the reference alone, the poses move)."""
+    ini = tmp_path / "fading.ini"
+    ini.write_text("[noise]\noffset_correlation_time = 5\n")
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "50")
+    assert_agrees(rc, fig, 50)
+    rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "50", "--set",
+                      "offset_correlation_time=0")
+    assert fig["agreement"]["position_max_m"] > 1e3 * TOLERANCE
+    assert rc == 1
+
+
 def agrees_and_matters(build_dir, tmp_path, monkeypatch, config, steps, rule_ratio, log=SAMPLE):
     """The two agree on the log's first steps (the sample's by default) under the INI text config, and
     no longer do once the reference alone sets its constant rule_ratio to infinity (the rule never

@@ -422,7 +422,8 @@ class Filter:
         (velocity_sensor_*) sees v + w x p: the body twist is T (u - b) with T = [I hat(p); 0 I],
         and G becomes G T. An error dp of the sensor position moves the body twist by -hat(w) dp
         on its linear rows: the parameters (offsets, then sensor position) enter through
-        Gt = [G T, G_lin hat(w)], Phi = I + Gt E^T."""
+        Gt = [G T, G_lin hat(w)], Phi = I + Gt E^T. The offsets' correlations with every other
+        state then fade by a = exp(-tau / offset_correlation_time), their own block kept."""
         tau = (utime - self.state_utime) * 1e-6
         if tau <= 0.0:
             return
@@ -465,6 +466,15 @@ class Filter:
         self.step_t2 += tau * tau * noise_share
         self.step_t += tau
         P = P + G @ Q @ G.T
+        tc = self.cfg["offset_correlation_time"]
+        if offsets and tc > 0.0:
+            # The offsets' correlations with every other state fade: D P D with D = a on their rows,
+            # their own block refilled to what it was before the step.
+            a = math.exp(-tau / tc)
+            Pbb = self.P[6:12, 6:12].copy()
+            P[6:12, :] *= a
+            P[:, 6:12] *= a
+            P[6:12, 6:12] += (1.0 - a * a) * Pbb
         if self.cfg["estimate_input_offsets"]:
             walk = [self.cfg["linear_offset_walk"] ** 2 * tau] * 3 + [self.cfg["angular_offset_walk"] ** 2 * tau] * 3
             P[6:12, 6:12] += np.diag(walk)

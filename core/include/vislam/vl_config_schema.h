@@ -131,6 +131,13 @@ typedef enum {
       "Random walk of the linear velocity offset.") \
     X("noise", "angular_offset_walk", angular_offset_walk, DOUBLE, 1e-4, 0.0, DBL_MAX, 0, "rad/s/sqrt(s)", \
       "Random walk of the angular velocity offset.") \
+    /* 100 s: at 50 s the sparse cells gain a little more and the simulated drives lose, at \
+       200 s most of the gain is gone (docs/accuracy-notes.md). */ \
+    X("noise", "offset_correlation_time", offset_correlation_time, DOUBLE, 100.0, 0.0, DBL_MAX, 0, "s", \
+      "How long the velocity offsets' estimate stays tied to the trajectory that taught it: " \
+      "each prediction step the offsets' correlations with every other state decay by " \
+      "exp(-dt / this) while their own covariance and estimate stay (0: never), so a late " \
+      "offset correction does not turn the whole window about the start.") \
     X("noise", "pixel", pixel_noise, DOUBLE, 1.5, 0.0, DBL_MAX, 1, "px", \
       "Standard deviation of each pixel coordinate of an observation.") \
     /* 0.35: better than off on 0027, its grid, the simulated drives, the realistic simulator and \
