@@ -334,6 +334,12 @@ void vl_session_fill_status(const vl_session_t *s, vislam_status_t *out)
     out->angular_velocity_noise = have_pose ? pose.angular_velocity_noise : s->cfg.angular_velocity_noise;
     out->pixel_noise = have_pose ? pose.pixel_noise : s->cfg.pixel_noise;
     out->innovation_ratio = vl_session_innovation_ratio(s, 1);
+    const double sensor[3] = {s->cfg.velocity_sensor_x, s->cfg.velocity_sensor_y, s->cfg.velocity_sensor_z};
+    for (int i = 0; i < 3; ++i) {
+        out->linear_offset[i] = have_pose ? pose.linear_offset[i] : 0.0;
+        out->angular_offset[i] = have_pose ? pose.angular_offset[i] : 0.0;
+        out->velocity_sensor[i] = have_pose ? pose.velocity_sensor[i] : sensor[i];
+    }
     out->frames_repeated = (int64_t)c->frames_repeated;
     out->time_jumps = (int64_t)c->time_jumps;
     out->timeline_changes = (int64_t)c->timeline_changes;

@@ -82,6 +82,26 @@ static int feed(unsigned steps)
     return 1;
 }
 
+/* The status carries what the estimator learned of the velocity sensor: its offsets and position. */
+void test_the_status_carries_the_learned_offsets_and_sensor_position(void)
+{
+    vislam_status_t status;
+    vl_session_fill_status(&session, &status);
+    for (int i = 0; i < 3; ++i) { /* before a pose: none learned, the configured position */
+        TEST_ASSERT_EQUAL_DOUBLE(0.0, status.linear_offset[i]);
+        TEST_ASSERT_EQUAL_DOUBLE(0.0, status.angular_offset[i]);
+        TEST_ASSERT_EQUAL_DOUBLE(0.0, status.velocity_sensor[i]);
+    }
+    TEST_ASSERT_EQUAL_INT(1, feed(40));
+    vl_pose_t pose;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &pose));
+    vl_session_fill_status(&session, &status);
+    TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.linear_offset, status.linear_offset, 3);
+    TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.angular_offset, status.angular_offset, 3);
+    TEST_ASSERT_EQUAL_DOUBLE_ARRAY(pose.velocity_sensor, status.velocity_sensor, 3);
+    TEST_ASSERT_TRUE(pose.angular_offset[0] != 0.0 && pose.velocity_sensor[0] != 0.0); /* learned */
+}
+
 void test_the_innovation_ratio_is_the_frames_ratios_weighted_by_their_rows(void)
 {
     vislam_status_t status;
@@ -114,6 +134,7 @@ void test_the_innovation_ratio_is_the_frames_ratios_weighted_by_their_rows(void)
 int main(void)
 {
     UNITY_BEGIN();
+    RUN_TEST(test_the_status_carries_the_learned_offsets_and_sensor_position);
     RUN_TEST(test_the_innovation_ratio_is_the_frames_ratios_weighted_by_their_rows);
     return UNITY_END();
 }
