@@ -223,6 +223,18 @@ def test_reference_agrees_with_a_velocity_sensor_lever_arm(build_dir, tmp_path):
     assert rc == 1
 
 
+def sparse_sensor_drive(build_dir, tmp_path, sensor, config):
+    """60 steps of a sparse simulated drive (5 observations a frame, seed 4, 0.3 px) whose velocity
+    sensor sits at SENSOR ("x,y,z" m), and an INI file of the text CONFIG: (log, ini)."""
+    log = tmp_path / "sensor.lcmlog"
+    subprocess.run([str(build_dir / "bin" / "vislam-sim"), "--max-observations", "5", "--steps", "60", "--seed", "4",
+                    "--pixel-noise", "0.3", "--velocity-sensor", sensor, "--out", str(log), "--truth",
+                    str(tmp_path / "truth.tum")], check=True, capture_output=True)
+    ini = tmp_path / "sensor.ini"
+    ini.write_text(config)
+    return log, ini
+
+
 def test_reference_agrees_on_sparse_frames_with_a_velocity_sensor_lever_arm(build_dir, tmp_path, monkeypatch):
     """On a sparse drive whose velocity sensor is 15 m from the IMU (vislam-sim --velocity-sensor, 5
     observations a frame), the two-view matching expects the angular noise's and offsets' share
@@ -230,12 +242,8 @@ def test_reference_agrees_on_sparse_frames_with_a_velocity_sensor_lever_arm(buil
     matters (with the linear noise alone expected in the reference only, the poses move)."""
     from reference import compare as compare_tool
     from reference import vl_reference
-    log = tmp_path / "lever.lcmlog"
-    subprocess.run([str(build_dir / "bin" / "vislam-sim"), "--max-observations", "5", "--steps", "60", "--seed", "4",
-                    "--pixel-noise", "0.3", "--velocity-sensor", "-12,8,-4", "--out", str(log), "--truth",
-                    str(tmp_path / "truth.tum")], check=True, capture_output=True)
-    ini = tmp_path / "lever.ini"
-    ini.write_text("[estimator]\nvelocity_sensor_x = -12\nvelocity_sensor_y = 8\nvelocity_sensor_z = -4\n")
+    log, ini = sparse_sensor_drive(build_dir, tmp_path, "-12,8,-4",
+                                   "[estimator]\nvelocity_sensor_x = -12\nvelocity_sensor_y = 8\nvelocity_sensor_z = -4\n")
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "60", log=log)
     assert_agrees(rc, fig, 60)
 
@@ -256,12 +264,8 @@ def test_reference_agrees_on_the_velocity_sensor_position_as_a_state(build_dir, 
     alone, or its share left out of the expected motion error, the poses move)."""
     from reference import compare as compare_tool
     from reference import vl_reference
-    log = tmp_path / "sensor.lcmlog"
-    subprocess.run([str(build_dir / "bin" / "vislam-sim"), "--max-observations", "5", "--steps", "60", "--seed", "4",
-                    "--pixel-noise", "0.3", "--velocity-sensor", "1.8,0,0", "--out", str(log), "--truth",
-                    str(tmp_path / "truth.tum")], check=True, capture_output=True)
-    ini = tmp_path / "sensor.ini"
-    ini.write_text("[estimator]\nvelocity_sensor_std_x = 2\nvelocity_sensor_std_y = 1\n")
+    log, ini = sparse_sensor_drive(build_dir, tmp_path, "1.8,0,0",
+                                   "[estimator]\nvelocity_sensor_std_x = 2\nvelocity_sensor_std_y = 1\n")
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "60", log=log)
     assert_agrees(rc, fig, 60)
     rc, fig = compare(build_dir, tmp_path, "--config", str(ini), "--max-steps", "60", "--set", "velocity_sensor_std_x=0",
