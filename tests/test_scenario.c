@@ -556,9 +556,9 @@ void test_the_velocity_sensor_position_is_learned_from_the_turns(void)
 
 /*
  * The offsets' correlations fade (offset_correlation_time): the world heading's covariance with
- * the angular offset, which a constant offset would grow with the time driven (a correction of
- * the offset then turning the whole window about the start), stays near the correlation time
- * times the offset's variance.
+ * the angular offset, which a constant offset lets build up over the drive (a correction of the
+ * offset then turning the whole window about the start), stays under the correlation time times
+ * the offset's variance, and well under what it reaches with a constant offset.
  */
 static double heading_per_offset(double correlation_time)
 {
