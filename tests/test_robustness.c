@@ -606,9 +606,11 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
     vl_test_kitti_config(&cfg);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 3);
-    /* Offsets as a drive would have learned them (the sensor's, which outlast a divergence). */
+    /* Offsets and a sensor position as a drive would have learned them (the sensor's, which
+     * outlast a divergence). */
     est.offset_linear[1] = -0.07;
     est.offset_angular[2] = 0.005;
+    est.sensor_position[0] = -1.5;
     /* Away from the start: 2 m/s forward for three steps, IMU only. */
     for (int k = 3; k < 6; ++k) {
         const vl_imu_sample_t s = imu_at(T0 + k * STEP, 2.0);
@@ -636,11 +638,14 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
     TEST_ASSERT_TRUE(after.covariance[0] > 0.0);
     TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
     TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->divergence_resets);
-    /* So are the offsets, with the core block of P (pose, offsets and their correlation); the
+    /* So are the offsets and the sensor position, with the core block of P (pose, parameters and
+     * their correlation); the
      * adapted noise starts again from the configured values. */
     TEST_ASSERT_EQUAL_MEMORY(before.linear_offset, after.linear_offset, sizeof(before.linear_offset));
     TEST_ASSERT_EQUAL_MEMORY(before.angular_offset, after.angular_offset, sizeof(before.angular_offset));
     TEST_ASSERT_EQUAL_DOUBLE(-0.07, after.linear_offset[1]);
+    TEST_ASSERT_EQUAL_MEMORY(before.velocity_sensor, after.velocity_sensor, sizeof(before.velocity_sensor));
+    TEST_ASSERT_EQUAL_DOUBLE(-1.5, after.velocity_sensor[0]);
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
         TEST_ASSERT_EQUAL_MEMORY(&core_before[VL_CORE_DIM * j], &est.P[(size_t)j * VL_STATE_DIM_MAX],
                                  VL_CORE_DIM * sizeof(double));
