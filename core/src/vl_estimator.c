@@ -50,9 +50,9 @@ static void keep_sound(vl_estimator_t *e)
 {
     memcpy(e->sound_R, e->R, sizeof(e->sound_R));
     memcpy(e->sound_p, e->p, sizeof(e->sound_p));
-    memcpy(&e->sound_offset[0], e->offset_linear, 3 * sizeof(double));
-    memcpy(&e->sound_offset[3], e->offset_angular, 3 * sizeof(double));
-    memcpy(&e->sound_offset[6], e->sensor_position, 3 * sizeof(double));
+    memcpy(&e->sound_param[0], e->offset_linear, 3 * sizeof(double));
+    memcpy(&e->sound_param[3], e->offset_angular, 3 * sizeof(double));
+    memcpy(&e->sound_param[6], e->sensor_position, 3 * sizeof(double));
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
         memcpy(&e->sound_P[VL_CORE_DIM * j], vl_P_at(e, 0, j), VL_CORE_DIM * sizeof(double));
     }
@@ -125,10 +125,10 @@ static void reset_state(vl_estimator_t *e, int keep_world)
     memcpy(held_linear, old->held_linear, sizeof(held_linear));
     memcpy(held_angular, old->held_angular, sizeof(held_angular));
     const int held_trusted = old->held_trusted;
-    double sound_R[9], sound_p[3], sound_offset[VL_PARAM_DIM], sound_P[VL_CORE_DIM * VL_CORE_DIM];
+    double sound_R[9], sound_p[3], sound_param[VL_PARAM_DIM], sound_P[VL_CORE_DIM * VL_CORE_DIM];
     memcpy(sound_R, old->sound_R, sizeof(sound_R));
     memcpy(sound_p, old->sound_p, sizeof(sound_p));
-    memcpy(sound_offset, old->sound_offset, sizeof(sound_offset));
+    memcpy(sound_param, old->sound_param, sizeof(sound_param));
     memcpy(sound_P, old->sound_P, sizeof(sound_P));
     init_state(e, &cfg);
     e->counters = counters;
@@ -146,10 +146,10 @@ static void reset_state(vl_estimator_t *e, int keep_world)
         e->held_trusted = held_trusted;
         memcpy(e->R, sound_R, sizeof(sound_R));
         memcpy(e->p, sound_p, sizeof(sound_p));
-        if (vl_guard_block_sound(sound_P, VL_CORE_DIM, VL_CORE_DIM) && vl_all_finite(sound_offset, VL_PARAM_DIM)) {
-            memcpy(e->offset_linear, &sound_offset[0], 3 * sizeof(double));
-            memcpy(e->offset_angular, &sound_offset[3], 3 * sizeof(double));
-            memcpy(e->sensor_position, &sound_offset[6], 3 * sizeof(double));
+        if (vl_guard_block_sound(sound_P, VL_CORE_DIM, VL_CORE_DIM) && vl_all_finite(sound_param, VL_PARAM_DIM)) {
+            memcpy(e->offset_linear, &sound_param[0], 3 * sizeof(double));
+            memcpy(e->offset_angular, &sound_param[3], 3 * sizeof(double));
+            memcpy(e->sensor_position, &sound_param[6], 3 * sizeof(double));
             for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
                 memcpy(vl_P_at(e, 0, j), &sound_P[VL_CORE_DIM * j], VL_CORE_DIM * sizeof(double));
             }

@@ -503,6 +503,40 @@ static double chi2_quantile_99(uint32_t k)
     return (double)k * c * c * c;
 }
 
+/* The sensor position's share of the expected motion error (input, 6 x 6, the input rows'
+ * covariance): with Js = (hat(W); 0), W = sum tau w, Js P_ss Js^T and its cross terms with the
+ * offsets, t (Js P_sb + P_bs Js^T). */
+static void add_sensor_motion_error(const vl_estimator_t *e, double input[36])
+{
+    double W[9], WP[9] = {0}, WPW[9] = {0}, cross[18] = {0};
+    vl_skew(e->step_turn, W);
+    for (uint32_t i = 0; i < 3; ++i) {
+        for (uint32_t j = 0; j < 3; ++j) {
+            for (uint32_t k = 0; k < 3; ++k) {
+                WP[3 * i + j] += W[3 * i + k] * vl_P_value(e, VL_IDX_SENSOR + k, VL_IDX_SENSOR + j);
+            }
+        }
+    }
+    vl_matmul_bt(WP, W, WPW, 3, 3, 3);
+    for (uint32_t i = 0; i < 3; ++i) { /* Js P_sb: 3 x 6 */
+        for (uint32_t j = 0; j < 6; ++j) {
+            for (uint32_t k = 0; k < 3; ++k) {
+                cross[6 * i + j] += W[3 * i + k] * vl_P_value(e, VL_IDX_SENSOR + k, VL_IDX_OFFSET_LIN + j);
+            }
+        }
+    }
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            input[6 * i + j] += WPW[3 * i + j];
+        }
+        for (int j = 0; j < 6; ++j) {
+            const double v = e->step_time * cross[6 * i + j];
+            input[6 * i + j] += v;
+            input[6 * j + i] += v;
+        }
+    }
+}
+
 /* The motion error the filter expects over the interval, per axis of the body frame: the input
  * noise (the velocity variance x sum tau^2) and the parameters' error, J P_tt J^T with
  * J = [sum tau I, (hat(sum tau w); 0)] (an offset error acts over the whole interval, a sensor
@@ -527,35 +561,7 @@ static void expected_motion_error(const vl_estimator_t *e, double q[6])
         }
     }
     if (vl_predict_sensor_estimated(e)) {
-        /* The sensor's block and its cross terms with the offsets: with Js = (hat(W); 0),
-         * Js P_ss Js^T + t (Js P_sb + P_bs Js^T), W = sum tau w. */
-        double W[9], WP[9] = {0}, WPW[9] = {0}, cross[18] = {0};
-        vl_skew(e->step_turn, W);
-        for (uint32_t i = 0; i < 3; ++i) {
-            for (uint32_t j = 0; j < 3; ++j) {
-                for (uint32_t k = 0; k < 3; ++k) {
-                    WP[3 * i + j] += W[3 * i + k] * vl_P_value(e, VL_IDX_SENSOR + k, VL_IDX_SENSOR + j);
-                }
-            }
-        }
-        vl_matmul_bt(WP, W, WPW, 3, 3, 3);
-        for (uint32_t i = 0; i < 3; ++i) { /* Js P_sb: 3 x 6 */
-            for (uint32_t j = 0; j < 6; ++j) {
-                for (uint32_t k = 0; k < 3; ++k) {
-                    cross[6 * i + j] += W[3 * i + k] * vl_P_value(e, VL_IDX_SENSOR + k, VL_IDX_OFFSET_LIN + j);
-                }
-            }
-        }
-        for (int i = 0; i < 3; ++i) {
-            for (int j = 0; j < 3; ++j) {
-                input[6 * i + j] += WPW[3 * i + j];
-            }
-            for (int j = 0; j < 6; ++j) {
-                const double v = e->step_time * cross[6 * i + j];
-                input[6 * i + j] += v;
-                input[6 * j + i] += v;
-            }
-        }
+        add_sensor_motion_error(e, input);
     }
     for (int i = 0; i < 6; ++i) {
         q[i] = input[7 * i];

@@ -203,7 +203,7 @@ void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double Gt[6 
     }
     const double *coupling = Gt != NULL ? Gc : NULL;
     double R[36]; /* the offsets' block before the step, which the decay refills */
-    for (uint32_t j = 0; j < 6; ++j) {
+    for (uint32_t j = 0; j < 6 && decay != 1.0; ++j) {
         memcpy(&R[6 * j], &e->P[(size_t)(VL_IDX_OFFSET_LIN + j) * VL_LD + VL_IDX_OFFSET_LIN], 6 * sizeof(double));
     }
     vl_la_propagate(e->P, VL_LD, VL_CORE_DIM, G, coupling, noise_var, offset_var, decay, R, work);

@@ -459,7 +459,7 @@ typedef struct {
     /** The state after the last input that passed the divergence check: where a divergence re-initializes. */
     double sound_R[9];                         /**< world-from-IMU rotation, row-major */
     double sound_p[3];                         /**< m */
-    double sound_offset[VL_PARAM_DIM];         /**< the parameters: linear offset m/s, angular rad/s, sensor m */
+    double sound_param[VL_PARAM_DIM];          /**< the parameters: linear offset m/s, angular rad/s, sensor m */
     double sound_P[VL_CORE_DIM * VL_CORE_DIM]; /**< the core block of P (pose and parameters), column-major */
 
     /** The previous accepted frame's observations, to recognize a repeated (stale) image. */
