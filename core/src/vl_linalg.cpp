@@ -205,8 +205,7 @@ using Mat3xParam = Eigen::Matrix<double, 3, VL_PARAM_DIM>;
  */
 struct settle_core {
     CoreParamMat Y;
-    ParamMat half_Pbb;
-    Mat3xCore half_A_rot;                        /* A's rotation rows / 2 */
+    Mat3xCore C;                                 /* Y_rot Pbb0 Y^T / 2 + A_rot / 2: U's rows per unit Lam */
     Eigen::Matrix<double, VL_CORE_DIM, 3> Z_rot; /* Z's core rows, rotation columns */
 };
 
@@ -216,21 +215,26 @@ settle_core settle_prepare(const vl_deferred_prediction_t *d)
     const Eigen::Map<const CoreMat> core0(d->core0);
     const Eigen::Map<const CoreMat> A(d->noise);
     c.Y = Eigen::Map<const CoreParamMat>(d->transition);
-    c.half_Pbb = 0.5 * core0.bottomRightCorner<VL_PARAM_DIM, VL_PARAM_DIM>();
-    c.half_A_rot = 0.5 * A.middleRows<3>(3);
+    const ParamMat half_Pbb = 0.5 * core0.bottomRightCorner<VL_PARAM_DIM, VL_PARAM_DIM>();
     CoreParamMat M = core0.rightCols<VL_PARAM_DIM>();
-    M.noalias() += c.Y * c.half_Pbb;
+    M.noalias() += c.Y * half_Pbb;
     CoreMat Z = 0.5 * A;
     Z.noalias() += M * c.Y.transpose();
     c.Z_rot = Z.middleCols<3>(3);
+    Mat3xParam YP;
+    YP.noalias() = c.Y.middleRows<3>(3) * half_Pbb;
+    c.C = 0.5 * A.middleRows<3>(3);
+    c.C.noalias() += YP * c.Y.transpose();
     return c;
 }
 
 /*
  * One landmark's rows against the core (3 x VL_CORE_DIM, read before the deferred steps)
  * to their settled values: rows + Z_s + Lam Z_c,rot^T with Lam = hat(point)
- * (B's block on the landmark's rows; zero without a point). Returns Lam and
- * Z_s's rotation columns for the landmark block.
+ * (B's block on the landmark's rows; zero without a point) and
+ * Z_s = rows_param Y^T + Lam C, the landmark's part of Z (U's rows being Lam times
+ * the rotation rows', what every landmark shares is in C). Returns Lam and Z_s's
+ * rotation columns for the landmark block.
  */
 template <typename RowsT>
 void settle_rows(const settle_core &c, const double *point, RowsT &&rows, Eigen::Matrix3d &Lam, Eigen::Matrix3d &Z_rot)
@@ -239,13 +243,9 @@ void settle_rows(const settle_core &c, const double *point, RowsT &&rows, Eigen:
     if (point != nullptr) {
         Lam << 0.0, -point[2], point[1], point[2], 0.0, -point[0], -point[1], point[0], 0.0;
     }
-    Mat3xParam V;
-    V.noalias() = Lam * c.Y.middleRows<3>(3);
-    Mat3xParam M = rows.template rightCols<VL_PARAM_DIM>();
-    M.noalias() += V * c.half_Pbb;
     Mat3xCore Z;
-    Z.noalias() = M * c.Y.transpose();
-    Z.noalias() += Lam * c.half_A_rot;
+    Z.noalias() = rows.template rightCols<VL_PARAM_DIM>() * c.Y.transpose();
+    Z.noalias() += Lam * c.C;
     rows += Z;
     rows.noalias() += Lam * c.Z_rot.transpose();
     Z_rot = Z.middleCols<3>(3);

@@ -91,17 +91,17 @@ void vl_work_predict(vl_estimator_t *e, int coupled, int decaying)
 
 void vl_work_settle(vl_estimator_t *e, uint32_t n_states, int moving)
 {
-    /* The shared core terms (M, Z on the core's rows), each landmark's rows against the core
-     * (V, M, Z: 3 x 3 x np, 3 x np x np, 3 x np x core and two 3 x 3 x core products), and the
-     * landmark block's rank-6 product on its lower triangle. */
+    /* The shared terms (M, Z on the core's rows, and C on the rotation rows), each landmark's rows
+     * against the core (Z: a 3 x np x core and two 3 x 3 x core products), and the landmark
+     * block's rank-6 product on its lower triangle. */
     const uint64_t nl = n_states - VL_CORE_DIM;
     if (nl == 0) {
         return; /* the core block is current already */
     }
     const uint64_t landmarks = nl / 3u;
     const uint64_t np = VL_PARAM_DIM, nc = VL_CORE_DIM;
-    const uint64_t core = 2u * nc * np * np + 2u * nc * np * nc + 300u;
-    const uint64_t per_landmark = 2u * (3u * 3u * np + 3u * np * np + 3u * np * nc + 2u * 3u * 3u * nc) + 100u;
+    const uint64_t core = 2u * nc * np * np + 2u * nc * np * nc + 2u * (3u * np * np + 3u * np * nc) + 300u;
+    const uint64_t per_landmark = 2u * (3u * np * nc + 2u * 3u * 3u * nc) + 100u;
     const uint64_t block = moving ? 6u * nl * (nl + 1u) : 0u;
     add(e, &e->work.predict, core + landmarks * per_landmark + block);
 }
