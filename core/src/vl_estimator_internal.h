@@ -3,8 +3,9 @@
  * @brief What every part of the estimator shares: the state layout, the
  *        per-frame landmark marks and a few small helpers (internal to core/).
  *
- * State order: [rho, phi (pose), linear offset, angular offset, landmark 0, ...].
- * Offsets are always present in the layout; with estimate_input_offsets off
+ * State order: [rho, phi (pose), linear offset, angular offset, velocity sensor
+ * position, landmark 0, ...]. Offsets and sensor position are always present in
+ * the layout; with estimate_input_offsets off, or a velocity_sensor_std_* at 0,
  * their covariance stays zero, so they never move. The covariance P is
  * column-major with leading dimension VL_LD; outside vl_predict.c it is
  * accessed through vl_P and vl_P_at only.
