@@ -231,7 +231,7 @@ static double check_landmark_noise(const double *before, landmark_noise_fn expec
     double largest = 0.0;
     for (uint32_t col = 0; col < n; ++col) {
         for (uint32_t row = 0; row < n; ++row) {
-            const size_t at = (size_t)col * VL_STATE_DIM_MAX + row;
+            const size_t at = (size_t)col * VL_COV_LD + row;
             const double added = est.P[at] - before[at];
             double e = 0.0;
             if (row >= VL_CORE_DIM && col >= VL_CORE_DIM) {
@@ -276,7 +276,7 @@ static void repeat_noise_block(const void *ctx, uint32_t a, uint32_t b, double Q
 void test_repeat_noise_moves_the_observed_landmarks_together_and_nothing_else(void)
 {
     static vl_stereo_frame_t frame;
-    static double before[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX];
+    static double before[VL_COV_LD * VL_COV_LD];
     static repeat_noise_t expected;
     vl_config_t cfg;
     window_of_six(&cfg, &frame);
@@ -338,7 +338,7 @@ static void carried_walk_block(const void *ctx, uint32_t a, uint32_t b, double Q
 void test_carried_walk_widens_the_carried_landmarks_alone(void)
 {
     static vl_stereo_frame_t frame;
-    static double before[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX];
+    static double before[VL_COV_LD * VL_COV_LD];
     static carried_walk_t expected;
     vl_config_t cfg;
     window_of_six(&cfg, &frame);
@@ -387,8 +387,7 @@ void test_carried_walk_widens_the_carried_landmarks_alone(void)
     const uint32_t n = vl_state_dim(&est);
     for (uint32_t col = 0; col < n; ++col) {
         for (uint32_t row = 0; row < col; ++row) {
-            TEST_ASSERT_EQUAL_DOUBLE(est.P[(size_t)col * VL_STATE_DIM_MAX + row],
-                                     est.P[(size_t)row * VL_STATE_DIM_MAX + col]);
+            TEST_ASSERT_EQUAL_DOUBLE(est.P[(size_t)col * VL_COV_LD + row], est.P[(size_t)row * VL_COV_LD + col]);
         }
     }
 }
@@ -424,8 +423,7 @@ void test_repeat_noise_acts_at_repeated_images_only(void)
         const uint32_t n = vl_state_dim(&est);
         int same = n == vl_state_dim(&off) && memcmp(est.p, off.p, sizeof(est.p)) == 0;
         for (uint32_t col = 0; col < n && same; ++col) { /* the state's columns: the rest of P is scratch */
-            same = memcmp(&est.P[(size_t)col * VL_STATE_DIM_MAX], &off.P[(size_t)col * VL_STATE_DIM_MAX],
-                          n * sizeof(double)) == 0;
+            same = memcmp(&est.P[(size_t)col * VL_COV_LD], &off.P[(size_t)col * VL_COV_LD], n * sizeof(double)) == 0;
         }
         TEST_ASSERT_EQUAL_INT(k != 5, same);
     }
@@ -510,6 +508,9 @@ void test_propagate_integrates_the_line_between_instantaneous_samples(void)
 /* ------------------------------------------------------------ shim: update and marginalization */
 
 #define N_TEST (VL_CORE_DIM + 3 * 3)
+/** A state dimension with a remainder of 3 rows past a multiple of 4, and room for the padding. */
+#define N_ODD (N_TEST + 3)
+#define LD_ODD (N_ODD + 1)
 
 static double rand_unit(unsigned *state)
 {
@@ -520,7 +521,7 @@ static double rand_unit(unsigned *state)
 /* Random SPD matrix into column-major storage with leading dimension ld. */
 static void random_spd(double *P, int ld, int n, unsigned seed)
 {
-    static double A[N_TEST * N_TEST];
+    static double A[N_ODD * N_ODD];
     unsigned s = seed;
     for (int i = 0; i < n * n; ++i) {
         A[i] = rand_unit(&s);
@@ -577,12 +578,18 @@ static void invert(double *M, int n)
     }
 }
 
-void test_la_update_equals_dense_kalman_formula(void)
+/* vl_la_update on n states stored with leading dimension ld against the dense Kalman formula; the
+ * rows past n that its padding uses are zero afterwards. */
+static void check_la_update_against_dense_formula(int n, int ld)
 {
-    enum { n = N_TEST, k = 3, m = 3 * k };
-    static double P[n * n], P0[n * n], PHt[n * m], S[m * m], dx[n];
-    random_spd(P, n, n, 7u);
-    memcpy(P0, P, sizeof(P));
+    enum { n_max = N_ODD, ld_max = LD_ODD, k = 3, m = 3 * k };
+    static double P[ld_max * n_max], P0[n_max * n_max], PHt[ld_max * m], S[m * m], dx[ld_max];
+    TEST_ASSERT_TRUE(n <= n_max && ld <= ld_max);
+    for (size_t i = 0; i < sizeof(P) / sizeof(P[0]); ++i) {
+        P[i] = 1e300; /* rows past n: no state's */
+    }
+    random_spd(P, ld, n, 7u);
+    random_spd(P0, n, n, 7u);
     vl_la_obs_t obs[k];
     unsigned s = 99u;
     for (int i = 0; i < k; ++i) {
@@ -599,7 +606,7 @@ void test_la_update_equals_dense_kalman_formula(void)
         obs[i].landmark_col = VL_CORE_DIM + 3 * ((i + 1) % 3);
     }
     /* Dense reference: H (m x n), K = P H^T S^-1, P+ = P - K H P, dx = K r. */
-    static double H[m * n], PHt_ref[n * m], Sref[m * m], K[n * m], Pref[n * n], dxref[n];
+    static double H[m * n_max], PHt_ref[n_max * m], Sref[m * m], K[n_max * m], Pref[n_max * n_max], dxref[n_max];
     memset(H, 0, sizeof(H));
     for (int i = 0; i < k; ++i) {
         for (int r = 0; r < 3; ++r) {
@@ -663,15 +670,26 @@ void test_la_update_equals_dense_kalman_formula(void)
 
     vl_la_workspace_t ws = {PHt, S, dx, NULL, NULL};
     double nis = -1.0;
-    TEST_ASSERT_EQUAL_INT(0, vl_la_update(P, n, n, obs, k, &ws, &nis));
+    TEST_ASSERT_EQUAL_INT(0, vl_la_update(P, ld, n, obs, k, &ws, &nis));
     TEST_ASSERT_DOUBLE_WITHIN(1e-9 * nis_ref, nis_ref, nis);
+    const int padded = (n + 3) / 4 * 4 < ld ? (n + 3) / 4 * 4 : ld;
     for (int a = 0; a < n; ++a) {
         TEST_ASSERT_DOUBLE_WITHIN(1e-9, dxref[a], dx[a]);
         for (int b = 0; b < n; ++b) {
-            TEST_ASSERT_DOUBLE_WITHIN(1e-9, Pref[b * n + a], P[b * n + a]);
-            TEST_ASSERT_EQUAL_DOUBLE(P[b * n + a], P[a * n + b]); /* exactly symmetric */
+            TEST_ASSERT_DOUBLE_WITHIN(1e-9, Pref[b * n + a], P[b * ld + a]);
+            TEST_ASSERT_EQUAL_DOUBLE(P[b * ld + a], P[a * ld + b]); /* exactly symmetric */
+        }
+        for (int r = n; r < ld; ++r) {
+            TEST_ASSERT_EQUAL_DOUBLE(r < padded ? 0.0 : 1e300, P[a * ld + r]);
         }
     }
+}
+
+void test_la_update_equals_dense_kalman_formula(void)
+{
+    check_la_update_against_dense_formula(N_TEST, N_TEST); /* a multiple of 4 */
+    check_la_update_against_dense_formula(N_ODD, N_ODD);   /* no room to pad */
+    check_la_update_against_dense_formula(N_ODD, LD_ODD);  /* padded by one zero row */
 }
 
 void test_la_update_refuses_indefinite_innovation_covariance(void)

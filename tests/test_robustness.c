@@ -622,11 +622,11 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
     TEST_ASSERT_TRUE(vl_window_size(&est) > 0);
     static double core_before[VL_CORE_DIM * VL_CORE_DIM];
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
-        memcpy(&core_before[VL_CORE_DIM * j], &est.P[(size_t)j * VL_STATE_DIM_MAX], VL_CORE_DIM * sizeof(double));
+        memcpy(&core_before[VL_CORE_DIM * j], &est.P[(size_t)j * VL_COV_LD], VL_CORE_DIM * sizeof(double));
     }
     TEST_ASSERT_TRUE(core_before[VL_CORE_DIM * 6 + 0] != 0.0); /* the pose and the offsets are correlated */
     /* A negative variance: the next input's check finds it. */
-    est.P[(size_t)4 * VL_STATE_DIM_MAX + 4] = -1e-3;
+    est.P[(size_t)4 * VL_COV_LD + 4] = -1e-3;
     const vl_imu_sample_t s = imu_at(T0 + 6 * STEP, 2.0);
     TEST_ASSERT_EQUAL_INT(VL_RESET, vl_propagate(&est, &s));
     get_pose(&est, &after);
@@ -647,7 +647,7 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
     TEST_ASSERT_EQUAL_MEMORY(before.velocity_sensor, after.velocity_sensor, sizeof(before.velocity_sensor));
     TEST_ASSERT_EQUAL_DOUBLE(-1.5, after.velocity_sensor[0]);
     for (uint32_t j = 0; j < VL_CORE_DIM; ++j) {
-        TEST_ASSERT_EQUAL_MEMORY(&core_before[VL_CORE_DIM * j], &est.P[(size_t)j * VL_STATE_DIM_MAX],
+        TEST_ASSERT_EQUAL_MEMORY(&core_before[VL_CORE_DIM * j], &est.P[(size_t)j * VL_COV_LD],
                                  VL_CORE_DIM * sizeof(double));
     }
     TEST_ASSERT_EQUAL_DOUBLE(cfg.linear_velocity_noise, after.linear_velocity_noise);
@@ -661,7 +661,7 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
      * restarts certain, as at vl_init, rather than diverge again at once. */
     get_pose(&est, &before);
     est.sound_P[0] = -1.0;
-    est.P[(size_t)4 * VL_STATE_DIM_MAX + 4] = -1e-3;
+    est.P[(size_t)4 * VL_COV_LD + 4] = -1e-3;
     const vl_imu_sample_t again = imu_at(T0 + 9 * STEP, 2.0);
     TEST_ASSERT_EQUAL_INT(VL_RESET, vl_propagate(&est, &again));
     get_pose(&est, &after);
@@ -672,7 +672,7 @@ void test_a_divergence_restarts_at_the_pose_before_the_input_that_diverged(void)
     /* ... and the offsets at their prior, as at vl_init. */
     TEST_ASSERT_EQUAL_DOUBLE(0.0, after.linear_offset[1]);
     TEST_ASSERT_EQUAL_DOUBLE(cfg.linear_offset_prior * cfg.linear_offset_prior,
-                             est.P[(size_t)(VL_IDX_OFFSET_LIN + 1) * VL_STATE_DIM_MAX + VL_IDX_OFFSET_LIN + 1]);
+                             est.P[(size_t)(VL_IDX_OFFSET_LIN + 1) * VL_COV_LD + VL_IDX_OFFSET_LIN + 1]);
     TEST_ASSERT_EQUAL_UINT64(2, vl_get_counters(&est)->divergence_resets);
     /* A new timeline still starts a new world at the identity (vl_reset likewise). */
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_reset(&est));
@@ -687,7 +687,7 @@ void test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&est, &cfg));
     clean_steps(&est, &cfg, T0, 3);
     /* A negative variance: not positive semi-definite. */
-    est.P[(size_t)4 * VL_STATE_DIM_MAX + 4] = -1e-3;
+    est.P[(size_t)4 * VL_COV_LD + 4] = -1e-3;
     vl_status_t a, b;
     step(&est, &cfg, T0 + 3 * STEP, &a, &b);
     TEST_ASSERT_EQUAL_INT(VL_RESET, a);
@@ -695,17 +695,17 @@ void test_injected_indefinite_or_nan_covariance_resets_and_no_nan_pose_is_handed
 
     /* A correlation beyond 1 in the pose block, diagonal still positive. */
     clean_steps(&est, &cfg, T0 + 4 * STEP, 2);
-    const double p00 = est.P[0], p11 = est.P[(size_t)1 * VL_STATE_DIM_MAX + 1];
+    const double p00 = est.P[0], p11 = est.P[(size_t)1 * VL_COV_LD + 1];
     TEST_ASSERT_TRUE(p00 > 0.0 && p11 > 0.0);
     /* Far beyond 1, so that the next prediction's added noise cannot dilute it back under. */
-    est.P[(size_t)1 * VL_STATE_DIM_MAX] = est.P[1] = 10.0 * sqrt(p00 * p11);
+    est.P[(size_t)1 * VL_COV_LD] = est.P[1] = 10.0 * sqrt(p00 * p11);
     step(&est, &cfg, T0 + 6 * STEP, &a, &b);
     TEST_ASSERT_EQUAL_INT(VL_RESET, a);
 
     /* NaN in a landmark's variance, found after the frame that uses it. */
     clean_steps(&est, &cfg, T0 + 7 * STEP, 3);
     TEST_ASSERT_TRUE(vl_window_size(&est) > 0);
-    est.P[(size_t)VL_CORE_DIM * VL_STATE_DIM_MAX + VL_CORE_DIM] = NAN;
+    est.P[(size_t)VL_CORE_DIM * VL_COV_LD + VL_CORE_DIM] = NAN;
     static vl_stereo_frame_t f;
     make_frame(&cfg, &f, T0 + 10 * STEP);
     TEST_ASSERT_EQUAL_INT(VL_RESET, vl_update(&est, &f));

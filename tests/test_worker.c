@@ -19,7 +19,7 @@
 #include "vl_session.h"
 #include "vl_worker.h"
 
-#define LD VL_STATE_DIM_MAX
+#define LD VL_COV_LD
 #define MAX_ROWS (VL_OBS_DIM * VL_MAX_LANDMARKS)
 
 static vl_worker_t worker;

@@ -19,7 +19,7 @@
 #include <math.h>
 
 /** Leading dimension of P and of the update workspaces. */
-#define VL_LD VL_STATE_DIM_MAX
+#define VL_LD VL_COV_LD
 
 /** First state index of the pose translation error rho. */
 #define VL_IDX_RHO 0

@@ -8,6 +8,8 @@
 
 #include "vislam/vislam.h"
 
+#include <algorithm>
+
 #include <Eigen/Core>
 #include <Eigen/Cholesky>
 
@@ -109,9 +111,10 @@ template <typename WT> void solve_right_lower_transpose(const DenseMap &S, WT &&
  * within about one panel of each other.
  */
 struct update_blocks {
-    MatMap *P;
+    MatMap *P;      /* padded rows (see vl_la_update) */
+    Eigen::Index n; /* the state's dimension: P's columns to downdate */
     const DenseMap *S;
-    DenseMap *W;
+    DenseMap *W; /* padded rows */
 };
 
 uint32_t block_count(Eigen::Index size, Eigen::Index block)
@@ -128,14 +131,14 @@ void whiten_task(void *arg, uint32_t index)
     solve_right_lower_transpose(*u->S, u->W->middleRows(r, h));
 }
 
-/* Lower triangle of P -= W W^T for one panel of columns. */
+/* Lower triangle of P -= W W^T for one panel of columns (rows down to the padding). */
 void downdate_task(void *arg, uint32_t index)
 {
     const update_blocks *u = static_cast<const update_blocks *>(arg);
-    const Eigen::Index n = u->P->rows();
+    const Eigen::Index rows = u->P->rows();
     const Eigen::Index j = static_cast<Eigen::Index>(index) * kPanel;
-    const Eigen::Index b = (n - j < kPanel) ? n - j : kPanel;
-    subtract_product_bt(u->P->block(j, j, n - j, b), u->W->middleRows(j, n - j), u->W->middleRows(j, b));
+    const Eigen::Index b = (u->n - j < kPanel) ? u->n - j : kPanel;
+    subtract_product_bt(u->P->block(j, j, rows - j, b), u->W->middleRows(j, rows - j), u->W->middleRows(j, b));
 }
 
 /* Below this many flops in its blocks an update runs them on the calling thread: waking a
@@ -400,20 +403,28 @@ extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs,
     if (shared) {
         ws->parallel_for(ws->parallel_ctx, whiten_task, nullptr, 0); /* the blocks come after S's factorization */
     }
+    /* The whitening and the downdate run on n rounded up to whole 4-row packets: a
+     * remainder row takes Eigen's scalar path in every product slab, 7% of a full
+     * window's update at n = 399 (README "Results"). P's rows past n belong to no
+     * state and are zeroed, as are W's: the padding changes no state row. It takes
+     * the room ld leaves, none when ld = n. */
+    const Eigen::Index np = std::min<Eigen::Index>((static_cast<Eigen::Index>(n) + 3) / 4 * 4, ld);
     MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
-    DenseMap PHt(ws->PHt, n, m);
+    MatMap Ppad(Pbuf, np, n, Eigen::OuterStride<>(ld));
+    DenseMap PHt(ws->PHt, np, m);
     DenseMap S(ws->S, m, m);
-    Eigen::Map<Eigen::VectorXd> dx(ws->dx, n);
+    Eigen::Map<Eigen::VectorXd> dx(ws->dx, np);
 
     /* P H^T from the observed columns only: each observation reads the six pose
      * columns and its landmark's three. */
     for (int i = 0; i < k; ++i) {
         const Eigen::Map<const Mat36> Hp(obs[i].H_pose);
         const Eigen::Map<const Mat33> Hl(obs[i].H_landmark);
-        auto block = PHt.middleCols<3>(3 * i);
+        auto block = PHt.middleCols<3>(3 * i).topRows(n);
         block.noalias() = P.leftCols<6>() * Hp.transpose();
         block.noalias() += P.middleCols<3>(obs[i].landmark_col) * Hl.transpose();
     }
+    PHt.bottomRows(np - n).setZero();
 
     /* S = H (P H^T) + R, again reading only the rows each observation touches.
      * Only the lower triangle is needed by the factorization. */
@@ -446,11 +457,12 @@ extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs,
     if (nis != nullptr) {
         *nis = e.squaredNorm();
     }
-    update_blocks blocks = {&P, &S, &PHt};
-    run_blocks(shared, ws, whiten_task, &blocks, block_count(n, kProductRows));
+    update_blocks blocks = {&Ppad, n, &S, &PHt};
+    run_blocks(shared, ws, whiten_task, &blocks, block_count(np, kProductRows));
     dx.noalias() = PHt * e;
 
     /* P - W W^T on the lower triangle, then mirrored, so P stays exactly symmetric. */
+    Ppad.bottomRows(np - n).setZero();
     run_blocks(shared, ws, downdate_task, &blocks, block_count(n, kPanel));
     mirror_lower_to_upper(P);
     return 0;

@@ -21,9 +21,9 @@ typedef vl_obs_row_t vl_la_obs_t;
 
 /** Buffers the joint update may use; sizes in doubles. */
 typedef struct {
-    double *PHt;                     /**< >= n * m */
+    double *PHt;                     /**< >= n4 * m (n4: see vl_la_update) */
     double *S;                       /**< >= m * m */
-    double *dx;                      /**< >= n: the state correction on success */
+    double *dx;                      /**< >= n4: the state correction on success (zero past n) */
     vl_parallel_for_fn parallel_for; /**< optional (vl_config_t::parallel_for); NULL = serial */
     void *parallel_ctx;              /**< passed to parallel_for */
 } vl_la_workspace_t;
@@ -81,6 +81,8 @@ void vl_la_settled_landmark(const double *P, int ld, int col, const vl_deferred_
  * of columns) go through ws->parallel_for when set and the update is costly
  * (16 Mflop in them): the blocks are fixed by the dimensions alone and written
  * by disjoint tasks, so P and dx are bit-identical however many threads run them.
+ * They run on n4 = min(n rounded up to a multiple of 4, ld) rows: P's rows n..n4-1,
+ * which belong to no state, are overwritten with zeros.
  * @param nis optional (NULL: not wanted): on success the normalized innovation
  *        squared r^T S^-1 r, the whitened innovation's squared norm (the
  *        factorization's by-product; chi-square with m degrees of freedom when the

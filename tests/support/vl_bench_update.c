@@ -20,7 +20,7 @@
 #include "vl_rt.h"
 #include "vl_worker.h"
 
-#define LD VL_STATE_DIM_MAX
+#define LD VL_COV_LD
 #define MAX_REPS 100000
 
 static double P0[LD * LD], P[LD * LD], G[LD * VL_RANDOM_FACTOR_RANK];

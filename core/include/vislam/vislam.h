@@ -60,6 +60,10 @@ extern "C" {
 #define VL_PARAM_DIM (VL_CORE_DIM - 6)
 /** Largest joint state dimension. */
 #define VL_STATE_DIM_MAX (VL_CORE_DIM + 3 * VL_MAX_LANDMARKS)
+/** Leading dimension of the joint covariance (vl_estimator_t::P): the largest state dimension
+ *  rounded up to a multiple of 4, so the update's products run on whole 4-row packets (README
+ *  "Latency"). */
+#define VL_COV_LD ((VL_STATE_DIM_MAX + 3) / 4 * 4)
 /** Rows of a compressed stereo observation: u_left, mean v, u_right. */
 #define VL_OBS_DIM 3
 
@@ -475,16 +479,16 @@ typedef struct {
     /** Prediction steps applied to P's core block only (vl_predict_settle applies them to the rest). */
     vl_deferred_prediction_t deferred;
 
-    /** Joint covariance, column-major with leading dimension VL_STATE_DIM_MAX. */
-    double P[VL_STATE_DIM_MAX * VL_STATE_DIM_MAX] VL_ALIGNED(VL_ESTIMATOR_ALIGN);
+    /** Joint covariance, column-major with leading dimension VL_COV_LD. */
+    double P[VL_COV_LD * VL_COV_LD] VL_ALIGNED(VL_ESTIMATOR_ALIGN);
 
     /** Update workspaces (P H^T, then the whitened gain; innovation covariance). */
-    double work_PHt[VL_STATE_DIM_MAX * VL_OBS_DIM * VL_MAX_LANDMARKS];
+    double work_PHt[VL_COV_LD * VL_OBS_DIM * VL_MAX_LANDMARKS];
     double work_S[(VL_OBS_DIM * VL_MAX_LANDMARKS) * (VL_OBS_DIM * VL_MAX_LANDMARKS)];
     vl_obs_row_t work_rows[VL_MAX_LANDMARKS];
     double work_r[VL_OBS_DIM * VL_MAX_LANDMARKS];
     double work_R[VL_OBS_DIM * VL_MAX_LANDMARKS];
-    double work_dx[VL_STATE_DIM_MAX];
+    double work_dx[VL_COV_LD];
     uint32_t work_slot[VL_MAX_LANDMARKS];
     uint32_t work_frame_obs[VL_MAX_LANDMARKS];
     uint8_t work_seen[VL_MAX_LANDMARKS];
