@@ -138,7 +138,7 @@ void test_prediction_is_constant_per_sample_and_paid_once_per_frame(void)
                 }
                 TEST_ASSERT_EQUAL_UINT64(sample_work, w.predict);
                 TEST_ASSERT_EQUAL_UINT64(w.predict, w.flops);
-                TEST_ASSERT_TRUE(w.predict < 20000u);
+                TEST_ASSERT_TRUE(w.predict < 30000u); /* O(core block^2): about 25,000 */
             }
             /* A frame at the last sample's time: no step of its own, the deferred steps applied once. */
             observe(&cfg, s.utime, 0, 0);

@@ -263,47 +263,47 @@ extern "C" void vl_la_configure(void)
     Eigen::setCpuCacheSizes(32 * 1024, 96 * 1024, 96 * 1024);
 }
 
-extern "C" void vl_la_propagate(double *Pbuf, int ld, int n, const double *Gbuf, const double *Gtbuf,
-                                const double noise_var[6], const double offset_var[6], double a, const double R[36],
-                                double *work)
+extern "C" void vl_la_propagate(double *Pbuf, int ld, const double *Gbuf, const double *Gtbuf,
+                                const double noise_var[6], const double offset_var[6], double a, const double R[36])
 {
     no_heap_scope guard;
-    MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
-    const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 6>> G(Gbuf, n, 6);
-
+    /* On a copy of the core block with its size fixed at compile time and padded to whole 4-row
+     * packets (zero rows and columns past the core): Eigen unrolls and vectorizes every product,
+     * half the time of general rank updates on P in place (README "Results"). */
+    constexpr int kPad = (VL_CORE_DIM + 3) / 4 * 4;
+    using PadMat = Eigen::Matrix<double, kPad, kPad>;
+    using PadParam = Eigen::Matrix<double, kPad, VL_PARAM_DIM>;
+    MatMap P(Pbuf, VL_CORE_DIM, VL_CORE_DIM, Eigen::OuterStride<>(ld));
+    PadMat C = PadMat::Zero();
+    C.topLeftCorner<VL_CORE_DIM, VL_CORE_DIM>() = P;
+    Eigen::Matrix<double, kPad, 6> N = Eigen::Matrix<double, kPad, 6>::Zero();
+    N.topRows<VL_CORE_DIM>() = Eigen::Map<const Eigen::Matrix<double, VL_CORE_DIM, 6>>(Gbuf) *
+                               Eigen::Map<const Eigen::Matrix<double, 6, 1>>(noise_var).cwiseSqrt().asDiagonal();
+    PadMat add;
+    add.noalias() = N * N.transpose();
     if (Gtbuf != nullptr) {
         /* Phi P Phi^T = P + Gt M^T + M Gt^T with M = P E + Gt (E^T P E) / 2. */
-        const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, VL_PARAM_DIM>> Gt(Gtbuf, n, VL_PARAM_DIM);
-        Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, VL_PARAM_DIM>> M(work, n, VL_PARAM_DIM);
-        M = P.middleCols<VL_PARAM_DIM>(6);
-        const ParamMat half_Pbb = 0.5 * P.block<VL_PARAM_DIM, VL_PARAM_DIM>(6, 6);
+        PadParam Gt = PadParam::Zero();
+        Gt.topRows<VL_CORE_DIM>() = Eigen::Map<const CoreParamMat>(Gtbuf);
+        PadParam M = C.middleCols<VL_PARAM_DIM>(6);
+        const ParamMat half_Pbb = 0.5 * C.block<VL_PARAM_DIM, VL_PARAM_DIM>(6, 6);
         M.noalias() += Gt * half_Pbb;
-        /* Gt M^T + M Gt^T = ((Gt + M)(Gt + M)^T - (Gt - M)(Gt - M)^T) / 2: two symmetric
-         * rank-VL_PARAM_DIM updates, which Eigen evaluates in place. */
-        M += Gt;
-        P.selfadjointView<Eigen::Lower>().rankUpdate(M, 0.5);
-        M -= 2.0 * Gt;
-        P.selfadjointView<Eigen::Lower>().rankUpdate(M, -0.5);
+        PadMat A;
+        A.noalias() = Gt * M.transpose();
+        add += A + A.transpose();
     }
-    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 6>> N(work, n, 6);
-    N.noalias() = G * Eigen::Map<const Eigen::Matrix<double, 6, 1>>(noise_var).cwiseSqrt().asDiagonal();
-    P.selfadjointView<Eigen::Lower>().rankUpdate(N);
+    C += add;
     if (Gtbuf != nullptr && a != 1.0) {
-        /* D P D + (1 - a^2) R on the lower triangle: the offsets' rows against the pose, their
-         * columns against the states after them, and their own block. */
-        P.block(6, 0, 6, 6) *= a;
-        P.block(12, 6, n - 12, 6) *= a;
-        const Eigen::Map<const Eigen::Matrix<double, 6, 6>> Rb(R);
-        for (Eigen::Index j = 0; j < 6; ++j) {
-            for (Eigen::Index i = j; i < 6; ++i) {
-                P(6 + i, 6 + j) = a * a * P(6 + i, 6 + j) + (1.0 - a * a) * Rb(i, j);
-            }
-        }
+        /* D P D + (1 - a^2) R: the offsets' rows and columns scaled, their own block refilled. */
+        C.middleRows<6>(6) *= a;
+        C.middleCols<6>(6) *= a;
+        C.block<6, 6>(6, 6) += (1.0 - a * a) * Eigen::Map<const Eigen::Matrix<double, 6, 6>>(R);
     }
     if (offset_var != nullptr) {
-        P.diagonal().segment<6>(6) += Eigen::Map<const Eigen::Matrix<double, 6, 1>>(offset_var);
+        C.diagonal().segment<6>(6) += Eigen::Map<const Eigen::Matrix<double, 6, 1>>(offset_var);
     }
-    mirror_lower_to_upper(P);
+    C.triangularView<Eigen::StrictlyUpper>() = C.transpose(); /* exactly symmetric */
+    P = C.topLeftCorner<VL_CORE_DIM, VL_CORE_DIM>();
 }
 
 extern "C" void vl_la_settle(double *Pbuf, int ld, int n, const vl_deferred_prediction_t *d, const double *points,

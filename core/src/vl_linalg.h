@@ -35,19 +35,19 @@ typedef struct {
 void vl_la_configure(void);
 
 /**
- * Prediction step in invariant error coordinates, where the error only moves
- * through the inputs: with G (n x 6, column-major) the input noise's Jacobian
- * and Gt (n x VL_PARAM_DIM, column-major) the parameters' (offsets, sensor position),
+ * Prediction step of the core block (VL_CORE_DIM states) in invariant error coordinates, where the
+ * error only moves through the inputs: with G (VL_CORE_DIM x 6, column-major) the input noise's
+ * Jacobian and Gt (VL_CORE_DIM x VL_PARAM_DIM, column-major) the parameters' (offsets, sensor
+ * position),
  *   P <- Phi P Phi^T + G diag(noise_var) G^T + (1 - a^2) E_b R E_b^T (+ diag(offset_var) on
  *   the offsets' states 6..11),
  *   Phi = [I Gt; 0 D] with E selecting the parameter states 6..VL_CORE_DIM-1 and D = diag(a I6, I3):
  *   the offsets decay by a per step (their correlations with the rest fade) and their block is
  *   refilled from R, the offsets' 6 x 6 block of the estimator's P before the step (column-major),
  *   so that P keeps it. Gt NULL when no parameter is estimated (Phi = I; a and R unused).
- * @param work >= VL_PARAM_DIM n doubles
  */
-void vl_la_propagate(double *P, int ld, int n, const double *G, const double *Gt, const double noise_var[6],
-                     const double offset_var[6], double a, const double R[36], double *work);
+void vl_la_propagate(double *P, int ld, const double *G, const double *Gt, const double noise_var[6],
+                     const double offset_var[6], double a, const double R[36]);
 
 /**
  * Applies a deferred prediction (vl_deferred_prediction_t: K steps whose core

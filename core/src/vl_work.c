@@ -61,18 +61,18 @@ void vl_work_begin(vl_estimator_t *e)
     memset(&e->work, 0, sizeof(e->work));
 }
 
-/* vl_la_propagate on n states: one symmetric rank-6 update of the lower triangle, two
- * rank-VL_PARAM_DIM ones when the parameters couple in, and the offsets' decay (their rows
- * scaled, their block refilled). */
-static uint64_t propagate_flops(uint64_t n, int coupled, int decaying)
+/* vl_la_propagate: full products on the core block padded to kp rows (whole 4-row packets): the
+ * noise's rank-6 product, M and Gt M^T when the parameters couple in, and the offsets' decay
+ * (their rows and columns scaled, their block refilled). */
+static uint64_t propagate_flops(int coupled, int decaying)
 {
-    const uint64_t np = VL_PARAM_DIM;
-    uint64_t flops = 6u * n + 6u * n * (n + 1u);
-    if (coupled) { /* M = P E + Gt Pbb / 2, Gt +- M */
-        flops += 2u * np * n * (n + 1u) + 2u * np * np * n + 3u * np * n;
+    const uint64_t np = VL_PARAM_DIM, kp = (VL_CORE_DIM + 3u) / 4u * 4u;
+    uint64_t flops = 6u * VL_CORE_DIM + 2u * 6u * kp * kp + kp * kp;
+    if (coupled) { /* M = P E + Gt Pbb / 2, then Gt M^T + M Gt^T */
+        flops += 2u * np * np * kp + np * kp + 2u * np * kp * kp + 2u * kp * kp;
     }
     if (decaying) {
-        flops += 6u * n + 4u * 21u;
+        flops += 2u * 6u * kp + 2u * 36u;
     }
     return flops;
 }
@@ -82,7 +82,7 @@ void vl_work_predict(vl_estimator_t *e, int coupled, int decaying)
     /* The pose, then P's core block and the deferred noise (VL_CORE_DIM states each), and the
      * transition's parameter rows: O(1). */
     const uint64_t transition = coupled ? 2u * 6u * VL_PARAM_DIM * (VL_PARAM_DIM + 1u) : 0u;
-    const uint64_t flops = VL_WORK_POSE + 2u * propagate_flops(VL_CORE_DIM, coupled, decaying) + transition;
+    const uint64_t flops = VL_WORK_POSE + 2u * propagate_flops(coupled, decaying) + transition;
     add(e, &e->work.predict, flops);
     if (e->work.state_dim == 0) {
         e->work.state_dim = VL_CORE_DIM + 3u * e->num_landmarks;
