@@ -3,7 +3,7 @@
  * @brief The dense linear algebra of the filter: a thin C API over Eigen (internal to core/).
  *
  * The joint covariance P is column-major with a fixed leading dimension ld
- * (VL_STATE_DIM_MAX), so adding or dropping a landmark never moves the rest.
+ * (VL_COV_LD), so adding or dropping a landmark never moves the rest.
  * Every function works in the caller's buffers and never allocates: in the
  * checked build (EIGEN_RUNTIME_NO_MALLOC) any heap use inside Eigen aborts.
  */

@@ -62,7 +62,7 @@ extern "C" {
 #define VL_STATE_DIM_MAX (VL_CORE_DIM + 3 * VL_MAX_LANDMARKS)
 /** Leading dimension of the joint covariance (vl_estimator_t::P): the largest state dimension
  *  rounded up to a multiple of 4, so the update's products run on whole 4-row packets (README
- *  "Latency"). */
+ *  "Results"). */
 #define VL_COV_LD ((VL_STATE_DIM_MAX + 3) / 4 * 4)
 /** Rows of a compressed stereo observation: u_left, mean v, u_right. */
 #define VL_OBS_DIM 3
