@@ -263,7 +263,7 @@ extern "C" void vl_la_configure(void)
     Eigen::setCpuCacheSizes(32 * 1024, 96 * 1024, 96 * 1024);
 }
 
-extern "C" void vl_la_propagate(double *Pbuf, int ld, const double *Gbuf, const double *Gtbuf,
+extern "C" void vl_la_propagate(double *Pbuf, int ld, const double Gp_rm[36], const double *Gt_rm,
                                 const double noise_var[6], const double offset_var[6], double a, const double R[36])
 {
     no_heap_scope guard;
@@ -276,15 +276,16 @@ extern "C" void vl_la_propagate(double *Pbuf, int ld, const double *Gbuf, const 
     MatMap P(Pbuf, VL_CORE_DIM, VL_CORE_DIM, Eigen::OuterStride<>(ld));
     PadMat C = PadMat::Zero();
     C.topLeftCorner<VL_CORE_DIM, VL_CORE_DIM>() = P;
+    /* The inputs move the pose rows only: the parameters' rows of G and Gt stay zero. */
     Eigen::Matrix<double, kPad, 6> N = Eigen::Matrix<double, kPad, 6>::Zero();
-    N.topRows<VL_CORE_DIM>() = Eigen::Map<const Eigen::Matrix<double, VL_CORE_DIM, 6>>(Gbuf) *
-                               Eigen::Map<const Eigen::Matrix<double, 6, 1>>(noise_var).cwiseSqrt().asDiagonal();
+    N.topRows<6>() = Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(Gp_rm) *
+                     Eigen::Map<const Eigen::Matrix<double, 6, 1>>(noise_var).cwiseSqrt().asDiagonal();
     PadMat add;
     add.noalias() = N * N.transpose();
-    if (Gtbuf != nullptr) {
+    if (Gt_rm != nullptr) {
         /* Phi P Phi^T = P + Gt M^T + M Gt^T with M = P E + Gt (E^T P E) / 2. */
         PadParam Gt = PadParam::Zero();
-        Gt.topRows<VL_CORE_DIM>() = Eigen::Map<const CoreParamMat>(Gtbuf);
+        Gt.topRows<6>() = Eigen::Map<const Eigen::Matrix<double, 6, VL_PARAM_DIM, Eigen::RowMajor>>(Gt_rm);
         PadParam M = C.middleCols<VL_PARAM_DIM>(6);
         const ParamMat half_Pbb = 0.5 * C.block<VL_PARAM_DIM, VL_PARAM_DIM>(6, 6);
         M.noalias() += Gt * half_Pbb;
@@ -293,7 +294,7 @@ extern "C" void vl_la_propagate(double *Pbuf, int ld, const double *Gbuf, const 
         add += A + A.transpose();
     }
     C += add;
-    if (Gtbuf != nullptr && a != 1.0) {
+    if (Gt_rm != nullptr && a != 1.0) {
         /* D P D + (1 - a^2) R: the offsets' rows and columns scaled, their own block refilled. */
         C.middleRows<6>(6) *= a;
         C.middleCols<6>(6) *= a;

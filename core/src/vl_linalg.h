@@ -36,9 +36,9 @@ void vl_la_configure(void);
 
 /**
  * Prediction step of the core block (VL_CORE_DIM states) in invariant error coordinates, where the
- * error only moves through the inputs: with G (VL_CORE_DIM x 6, column-major) the input noise's
- * Jacobian and Gt (VL_CORE_DIM x VL_PARAM_DIM, column-major) the parameters' (offsets, sensor
- * position),
+ * error only moves through the inputs: with G the input noise's Jacobian and Gt the parameters'
+ * (offsets, sensor position), both nonzero on the pose rows only and given as those rows (Gp
+ * 6 x 6 and Gt 6 x VL_PARAM_DIM, row-major),
  *   P <- Phi P Phi^T + G diag(noise_var) G^T + (1 - a^2) E_b R E_b^T (+ diag(offset_var) on
  *   the offsets' states 6..11),
  *   Phi = [I Gt; 0 D] with E selecting the parameter states 6..VL_CORE_DIM-1 and D = diag(a I6, I3):
@@ -46,7 +46,7 @@ void vl_la_configure(void);
  *   refilled from R, the offsets' 6 x 6 block of the estimator's P before the step (column-major),
  *   so that P keeps it. Gt NULL when no parameter is estimated (Phi = I; a and R unused).
  */
-void vl_la_propagate(double *P, int ld, const double *G, const double *Gt, const double noise_var[6],
+void vl_la_propagate(double *P, int ld, const double Gp[36], const double *Gt, const double noise_var[6],
                      const double offset_var[6], double a, const double R[36]);
 
 /**

@@ -508,29 +508,26 @@ static double chi2_quantile_99(uint32_t k)
  * offsets, t (Js P_sb + P_bs Js^T). */
 static void add_sensor_motion_error(const vl_estimator_t *e, double input[36])
 {
-    double W[9], WP[9] = {0}, WPW[9] = {0}, cross[18] = {0};
+    double W[9], Ps[3 * VL_PARAM_DIM], WPs[3 * VL_PARAM_DIM], WPss[9], WPW[9];
     vl_skew(e->step_turn, W);
-    for (uint32_t i = 0; i < 3; ++i) {
-        for (uint32_t j = 0; j < 3; ++j) {
-            for (uint32_t k = 0; k < 3; ++k) {
-                WP[3 * i + j] += W[3 * i + k] * vl_P_value(e, VL_IDX_SENSOR + k, VL_IDX_SENSOR + j);
-            }
+    for (uint32_t i = 0; i < 3; ++i) { /* the sensor's rows against the parameters: [P_sb, P_ss] */
+        for (uint32_t j = 0; j < VL_PARAM_DIM; ++j) {
+            Ps[VL_PARAM_DIM * i + j] = vl_P_value(e, VL_IDX_SENSOR + i, VL_IDX_PARAM + j);
         }
     }
-    vl_matmul_bt(WP, W, WPW, 3, 3, 3);
-    for (uint32_t i = 0; i < 3; ++i) { /* Js P_sb: 3 x 6 */
-        for (uint32_t j = 0; j < 6; ++j) {
-            for (uint32_t k = 0; k < 3; ++k) {
-                cross[6 * i + j] += W[3 * i + k] * vl_P_value(e, VL_IDX_SENSOR + k, VL_IDX_OFFSET_LIN + j);
-            }
+    vl_matmul(W, Ps, WPs, 3, 3, VL_PARAM_DIM); /* [Js P_sb, W P_ss] on Js's linear rows */
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            WPss[3 * i + j] = WPs[VL_PARAM_DIM * i + 6 + j];
         }
     }
+    vl_matmul_bt(WPss, W, WPW, 3, 3, 3);
     for (int i = 0; i < 3; ++i) {
         for (int j = 0; j < 3; ++j) {
             input[6 * i + j] += WPW[3 * i + j];
         }
         for (int j = 0; j < 6; ++j) {
-            const double v = e->step_time * cross[6 * i + j];
+            const double v = e->step_time * WPs[VL_PARAM_DIM * i + j];
             input[6 * i + j] += v;
             input[6 * j + i] += v;
         }

@@ -191,23 +191,12 @@ void vl_predict_defer(vl_estimator_t *e, const double Gp[36], const double Gt[6 
         memset(d->transition, 0, sizeof(d->transition));
         memset(d->noise, 0, sizeof(d->noise));
     }
-    /* The step's maps on the core, column-major: Gp and Gt on the pose rows, zero on the parameters'. */
-    double G[VL_CORE_DIM * 6] = {0}, Gc[VL_CORE_DIM * VL_PARAM_DIM] = {0};
-    for (int i = 0; i < 6; ++i) {
-        for (int j = 0; j < 6; ++j) {
-            G[VL_CORE_DIM * j + i] = Gp[6 * i + j];
-        }
-        for (int j = 0; j < VL_PARAM_DIM && Gt != NULL; ++j) {
-            Gc[VL_CORE_DIM * j + i] = Gt[VL_PARAM_DIM * i + j];
-        }
-    }
-    const double *coupling = Gt != NULL ? Gc : NULL;
     double R[36]; /* the offsets' block before the step, which the decay refills */
     for (uint32_t j = 0; j < 6 && decay != 1.0; ++j) {
         memcpy(&R[6 * j], &e->P[(size_t)(VL_IDX_OFFSET_LIN + j) * VL_LD + VL_IDX_OFFSET_LIN], 6 * sizeof(double));
     }
-    vl_la_propagate(e->P, VL_LD, G, coupling, noise_var, offset_var, decay, R);
-    vl_la_propagate(d->noise, VL_CORE_DIM, G, coupling, noise_var, offset_var, decay, R);
+    vl_la_propagate(e->P, VL_LD, Gp, Gt, noise_var, offset_var, decay, R);
+    vl_la_propagate(d->noise, VL_CORE_DIM, Gp, Gt, noise_var, offset_var, decay, R);
     if (Gt != NULL) {
         /* Y_pose += Gt (I + Y_param); Y_param <- D (I + Y_param) - I. */
         double *Y = d->transition;
