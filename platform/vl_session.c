@@ -140,6 +140,21 @@ static void count_status(uint64_t *slots, vl_status_t status)
     slots[v - (int)VL_STATUS_MIN]++;
 }
 
+static void note_reinitialized(vl_session_t *s, int64_t utime)
+{
+    s->n.reinitializations++;
+    if (!s->opt.quiet) {
+        const vl_counters_t *c = vl_get_counters(s->est);
+        fprintf(stderr,
+                "%s: estimator re-initialized at utime %" PRId64 " (%" PRIu64 " timeline change(s), %" PRIu64
+                " divergence reset(s) in all)\n",
+                program(s), utime, c->timeline_changes, c->divergence_resets);
+    }
+    if (s->opt.callbacks.on_event != NULL) {
+        s->opt.callbacks.on_event(s->opt.callbacks.user, VL_SESSION_EVENT_REINITIALIZED, utime);
+    }
+}
+
 /* After a core call: counts, the re-initialization event, then the pose. */
 static void after_step(vl_session_t *s, vl_session_step_t step, vl_status_t st, int64_t utime)
 {
@@ -163,17 +178,7 @@ static void after_step(vl_session_t *s, vl_session_step_t step, vl_status_t st, 
     }
     s->last_input_utime = utime;
     if (st == VL_RESET) {
-        s->n.reinitializations++;
-        if (!s->opt.quiet) {
-            const vl_counters_t *c = vl_get_counters(s->est);
-            fprintf(stderr,
-                    "%s: estimator re-initialized at utime %" PRId64 " (%" PRIu64 " timeline change(s), %" PRIu64
-                    " divergence reset(s) in all)\n",
-                    program(s), utime, c->timeline_changes, c->divergence_resets);
-        }
-        if (s->opt.callbacks.on_event != NULL) {
-            s->opt.callbacks.on_event(s->opt.callbacks.user, VL_SESSION_EVENT_REINITIALIZED, utime);
-        }
+        note_reinitialized(s, utime);
     }
     if (vl_get_pose(s->est, &s->pose) != VL_OK) {
         s->n.poses_withheld++;
@@ -258,6 +263,18 @@ vl_session_step_t vl_session_input(vl_session_t *s, const vl_log_event_t *ev, vl
         *status = st;
     }
     return step;
+}
+
+vl_status_t vl_session_finish(vl_session_t *s)
+{
+    if (s == NULL || !s->initialized) {
+        return VL_OK;
+    }
+    const vl_status_t st = vl_update_deferred(s->est);
+    if (st == VL_RESET) {
+        note_reinitialized(s, s->last_input_utime);
+    }
+    return st;
 }
 
 void vl_session_flush(vl_session_t *s)

@@ -169,6 +169,17 @@ vl_status_t vl_session_init(vl_session_t *s, vl_estimator_t *est, const vl_confi
  */
 vl_session_step_t vl_session_input(vl_session_t *s, const vl_log_event_t *ev, vl_status_t *status);
 
+/**
+ * The part of the last input's work that may wait until its pose is out: the
+ * observations the frame's update deferred under its time bound
+ * (vl_update_deferred). Every program calls it after vl_session_input, before
+ * the next input, so that the same inputs give the same estimate everywhere;
+ * the pose's latency is vl_session_input's alone. A core re-initialization it
+ * leads to is counted and reported as vl_session_input's are (on_event).
+ * @return VL_OK when there was nothing to do, else vl_update_deferred's status
+ */
+vl_status_t vl_session_finish(vl_session_t *s);
+
 /** Hands the window's landmarks to on_landmark (end of a run). */
 void vl_session_flush(vl_session_t *s);
 

@@ -40,6 +40,7 @@ typedef struct {
     uint64_t steps;
     uint64_t allocations;
     uint64_t landmarks;
+    uint64_t deferred; /* frames whose deferred observations were applied after them */
 } alloc_run_t;
 
 static void count_landmark(void *user, const vl_landmark_t *lm)
@@ -83,6 +84,8 @@ static int run_log(const char *path, vl_worker_t *worker, alloc_run_t *out)
         vl_status_t st = (kind == VL_LOG_EVENT_IMU) ? vl_propagate(&est, &ev.imu) : vl_update(&est, &ev.frame);
         vl_pose_t pose;
         vl_get_pose(&est, &pose);
+        out->deferred += vl_deferred_pending(&est) > 0;
+        TEST_ASSERT_TRUE(vl_update_deferred(&est) >= 0);
         out->allocations += calls_now() - before;
         TEST_ASSERT_TRUE(st >= 0);
         out->steps++;
@@ -119,9 +122,11 @@ static void check_log_with(const char *path, vl_worker_t *worker)
         TEST_IGNORE_MESSAGE(msg);
     }
     TEST_ASSERT_EQUAL_INT(0, run_log(path, worker, &run));
-    printf("%s: %llu steps, %llu landmarks mapped, %llu heap allocations inside steps\n", path,
-           (unsigned long long)run.steps, (unsigned long long)run.landmarks, (unsigned long long)run.allocations);
+    printf("%s: %llu steps (%llu deferred updates), %llu landmarks mapped, %llu heap allocations inside steps\n", path,
+           (unsigned long long)run.steps, (unsigned long long)run.deferred, (unsigned long long)run.landmarks,
+           (unsigned long long)run.allocations);
     TEST_ASSERT_TRUE(run.steps > 100);
+    TEST_ASSERT_TRUE(run.deferred > 0);
     TEST_ASSERT_TRUE(run.landmarks > 100);
     TEST_ASSERT_EQUAL_UINT64(0, run.allocations);
 }

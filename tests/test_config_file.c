@@ -503,6 +503,8 @@ void test_vl_config_default_equals_documented_values(void)
     TEST_ASSERT_EQUAL_UINT32(64, cfg.max_update_observations);
     TEST_ASSERT_EQUAL_DOUBLE(18.5, cfg.max_update_work);
     TEST_ASSERT_EQUAL_INT(1, cfg.rotate_deferred);
+    TEST_ASSERT_EQUAL_INT(1, cfg.apply_deferred);
+    TEST_ASSERT_EQUAL_DOUBLE(18.5, cfg.max_deferred_work);
     TEST_ASSERT_EQUAL_DOUBLE(0.5, cfg.linear_velocity_noise);
     TEST_ASSERT_EQUAL_DOUBLE(0.05, cfg.angular_velocity_noise);
     TEST_ASSERT_EQUAL_DOUBLE(0.1, cfg.linear_offset_prior);
@@ -541,8 +543,8 @@ void test_vl_config_default_equals_documented_values(void)
     TEST_ASSERT_EQUAL_DOUBLE_ARRAY(I, cfg.calibration.cam_T_imu, 16);
     TEST_ASSERT_NULL(cfg.landmark_sink);
     TEST_ASSERT_NULL(cfg.log);
-    /* Every member before the calibration is a row of the table: 45 rows, and they tile it. */
-    TEST_ASSERT_EQUAL_UINT(45, NUM_ROWS);
+    /* Every member before the calibration is a row of the table: 47 rows, and they tile it. */
+    TEST_ASSERT_EQUAL_UINT(47, NUM_ROWS);
     size_t end = 0;
     for (size_t i = 0; i < NUM_ROWS; ++i) {
         TEST_ASSERT_TRUE_MESSAGE(k_rows[i].offset >= end, k_rows[i].key);
@@ -749,7 +751,7 @@ void test_vl_counters_list_names_every_counter_once(void)
 #undef SET_COUNTER
     vl_counter_entry_t e[VL_NUM_COUNTERS];
     TEST_ASSERT_EQUAL_UINT(VL_NUM_COUNTERS, vl_counters_list(&c, e));
-    TEST_ASSERT_EQUAL_UINT(34, VL_NUM_COUNTERS);
+    TEST_ASSERT_EQUAL_UINT(35, VL_NUM_COUNTERS);
     TEST_ASSERT_EQUAL_STRING("imu_accepted", e[0].name);
     TEST_ASSERT_EQUAL_STRING("window_peak", e[VL_NUM_COUNTERS - 1].name);
     for (size_t i = 0; i < VL_NUM_COUNTERS; ++i) {

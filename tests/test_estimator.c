@@ -1001,6 +1001,121 @@ void test_rotated_deferrals_reach_every_landmark_in_turn(void)
     TEST_ASSERT_GREATER_THAN_UINT32(0, never);
 }
 
+/* Two frames of the same 12 tracks at rest under a 5-observation bound, the noise fixed; the
+ * second frame's deferred observations applied (vl_update_deferred) when apply is set. */
+static void twelve_tracks_under_bound(vl_config_t *cfg, int apply)
+{
+    vl_test_kitti_config(cfg);
+    cfg->min_track_length = 1;
+    cfg->adaptive_noise = 0; /* the noise in use must not move between the two updates */
+    cfg->max_update_work = 0.0;
+    cfg->max_update_observations = 5;
+    (void)update_window_of(cfg, 12);
+    if (apply) {
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
+    }
+}
+
+void test_deferred_observations_are_applied_after_the_pose(void)
+{
+    vl_config_t cfg;
+    twelve_tracks_under_bound(&cfg, 0);
+    TEST_ASSERT_EQUAL_UINT32(7, vl_deferred_pending(&est));
+    vl_pose_t before, after;
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &before));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &after));
+    const vl_counters_t *c = vl_get_counters(&est);
+    TEST_ASSERT_EQUAL_UINT64(12, c->observations_used);
+    TEST_ASSERT_EQUAL_UINT64(7, c->observations_deferred);
+    TEST_ASSERT_EQUAL_UINT64(7, c->observations_deferred_used);
+    TEST_ASSERT_EQUAL_UINT32(0, vl_deferred_pending(&est));
+    vl_work_t w;
+    vl_get_work(&est, &w);
+    TEST_ASSERT_EQUAL_UINT32(21, w.rows);
+    TEST_ASSERT_EQUAL_UINT32(vl_state_dim(&est), w.state_dim);
+    TEST_ASSERT_EQUAL_UINT64(w.update, w.flops);
+    TEST_ASSERT_GREATER_THAN_UINT64(vl_work_joint_update(vl_state_dim(&est), 7), w.flops - 1u);
+    /* The seven more observations narrow the position (3 x 3 block of rho, row-major 6 x 6). */
+    for (int i = 0; i < 3; ++i) {
+        TEST_ASSERT_TRUE(after.covariance[7 * i] < before.covariance[7 * i]);
+    }
+    /* Nothing is left: a second call does nothing and leaves the work as it was. */
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
+    TEST_ASSERT_EQUAL_UINT64(7, vl_get_counters(&est)->observations_deferred_used);
+    vl_work_t again;
+    vl_get_work(&est, &again);
+    TEST_ASSERT_EQUAL_UINT64(w.flops, again.flops);
+}
+
+void test_deferred_update_equals_the_unbounded_joint_update(void)
+{
+    /* At rest on exact pixels the correction is next to zero (1e-7 m), so the deferred rows are
+     * linearized where the frame's were, and two sequential updates must leave the covariance of
+     * one joint update, to the digits that correction moves (rows left out would move the
+     * landmarks' variances by their whole size). */
+    static double P_deferred[VL_COV_LD * VL_COV_LD];
+    vl_config_t cfg;
+    twelve_tracks_under_bound(&cfg, 1);
+    const uint32_t n = vl_state_dim(&est);
+    memcpy(P_deferred, est.P, sizeof(P_deferred));
+    cfg.max_update_observations = 0;
+    (void)update_window_of(&cfg, 12);
+    TEST_ASSERT_EQUAL_UINT64(12, vl_get_counters(&est)->observations_used);
+    TEST_ASSERT_EQUAL_UINT32(n, vl_state_dim(&est));
+    double scale = 0.0, diff = 0.0;
+    for (uint32_t j = 0; j < n; ++j) {
+        for (uint32_t i = 0; i < n; ++i) {
+            const double a = est.P[(size_t)j * VL_COV_LD + i], b = P_deferred[(size_t)j * VL_COV_LD + i];
+            scale = fmax(scale, fabs(a));
+            diff = fmax(diff, fabs(a - b));
+        }
+    }
+    TEST_ASSERT_TRUE(scale > 0.0);
+    TEST_ASSERT_TRUE_MESSAGE(diff <= 1e-6 * scale, "sequential updates differ from the joint one");
+}
+
+void test_deferred_observations_are_dropped_by_the_next_input_or_when_off(void)
+{
+    vl_config_t cfg;
+    twelve_tracks_under_bound(&cfg, 0);
+    vl_imu_sample_t s = vl_test_imu_at(200000, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    TEST_ASSERT_EQUAL_UINT32(0, vl_deferred_pending(&est));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
+    TEST_ASSERT_EQUAL_UINT64(0, vl_get_counters(&est)->observations_deferred_used);
+    TEST_ASSERT_EQUAL_UINT64(5, vl_get_counters(&est)->observations_used);
+
+    vl_test_kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.max_update_work = 0.0;
+    cfg.max_update_observations = 5;
+    cfg.apply_deferred = 0;
+    (void)update_window_of(&cfg, 12);
+    TEST_ASSERT_EQUAL_UINT64(7, vl_get_counters(&est)->observations_deferred);
+    TEST_ASSERT_EQUAL_UINT32(0, vl_deferred_pending(&est));
+    TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_update_deferred(NULL));
+    TEST_ASSERT_EQUAL_UINT32(0, vl_deferred_pending(NULL));
+}
+
+void test_deferred_work_bound_applies_at_least_one(void)
+{
+    vl_config_t cfg;
+    vl_test_kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.max_update_work = 0.0;
+    cfg.max_update_observations = 5;
+    const uint32_t n = VL_CORE_DIM + 3u * 12u;
+    cfg.max_deferred_work = (double)vl_work_joint_update(n, 3u) * 1e-6;
+    (void)update_window_of(&cfg, 12);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
+    TEST_ASSERT_EQUAL_UINT64(3, vl_get_counters(&est)->observations_deferred_used);
+    cfg.max_deferred_work = 1e-9;
+    (void)update_window_of(&cfg, 12);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
+    TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->observations_deferred_used);
+}
+
 void test_admissions_per_frame_are_bounded_and_the_rest_wait(void)
 {
     static vl_stereo_frame_t frame;
@@ -1123,6 +1238,10 @@ int main(void)
     RUN_TEST(test_update_uses_at_most_max_update_observations);
     RUN_TEST(test_update_work_bound_uses_fewer_observations_in_a_larger_window);
     RUN_TEST(test_rotated_deferrals_reach_every_landmark_in_turn);
+    RUN_TEST(test_deferred_observations_are_applied_after_the_pose);
+    RUN_TEST(test_deferred_update_equals_the_unbounded_joint_update);
+    RUN_TEST(test_deferred_observations_are_dropped_by_the_next_input_or_when_off);
+    RUN_TEST(test_deferred_work_bound_applies_at_least_one);
     RUN_TEST(test_admissions_per_frame_are_bounded_and_the_rest_wait);
     RUN_TEST(test_update_counts_a_repeated_image_and_nothing_else);
     RUN_TEST(test_repeat_noise_moves_the_observed_landmarks_together_and_nothing_else);

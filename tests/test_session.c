@@ -14,14 +14,16 @@ static vl_session_t session;
 static vl_sim_t sim;
 static vl_log_event_t ev;
 
-/* What on_pose saw of the frames' updates: sum of ratio x rows, and rows. */
+/* What on_pose saw of the frames' updates: sum of ratio x rows, and rows; what feed saw deferred. */
 typedef struct {
     double nis;
     double rows;
     unsigned frames;
+    uint64_t deferred_frames; /* frames whose update deferred observations (finish_frames) */
 } seen_t;
 
 static seen_t seen;
+static int finish_frames; /* feed calls vl_session_finish after each frame */
 
 static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t sequence, const vl_pose_t *pose)
 {
@@ -38,6 +40,7 @@ static void on_pose(void *user, vl_session_step_t step, int64_t utime, uint64_t 
 void setUp(void)
 {
     memset(&seen, 0, sizeof(seen));
+    finish_frames = 0;
     vl_sim_config_t sc;
     vl_sim_config_default(&sc);
     sc.num_steps = 80;
@@ -78,11 +81,36 @@ static int feed(unsigned steps)
         ev.kind = VL_LOG_EVENT_FRAME;
         ev.frame = frame;
         vl_session_input(&session, &ev, NULL);
+        if (finish_frames) {
+            const uint32_t pending = vl_deferred_pending(&est);
+            const uint64_t used = vl_get_counters(&est)->observations_deferred_used;
+            TEST_ASSERT_EQUAL_INT(VL_OK, vl_session_finish(&session));
+            TEST_ASSERT_EQUAL_UINT32(0, vl_deferred_pending(&est));
+            const uint64_t applied = vl_get_counters(&est)->observations_deferred_used - used;
+            if (pending > 0) { /* some, at most those pending (max_deferred_work cuts the rest) */
+                seen.deferred_frames++;
+                TEST_ASSERT_TRUE(applied > 0 && applied <= pending);
+            } else {
+                TEST_ASSERT_EQUAL_UINT64(0, applied);
+            }
+        }
     }
     return 1;
 }
 
 /* The status carries what the estimator learned of the velocity sensor: its offsets and position. */
+/* What a frame's update deferred under the work bound reaches the state after its pose, through
+ * vl_session_finish, and a finish with nothing deferred does nothing. */
+void test_finish_applies_what_the_frame_deferred(void)
+{
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_session_finish(&session)); /* nothing yet */
+    finish_frames = 1;
+    (void)feed(79);
+    finish_frames = 0;
+    TEST_ASSERT_GREATER_THAN_UINT64(0, seen.deferred_frames);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_session_finish(NULL));
+}
+
 void test_the_status_carries_the_learned_offsets_and_sensor_position(void)
 {
     vislam_status_t status;
@@ -134,6 +162,7 @@ void test_the_innovation_ratio_is_the_frames_ratios_weighted_by_their_rows(void)
 int main(void)
 {
     UNITY_BEGIN();
+    RUN_TEST(test_finish_applies_what_the_frame_deferred);
     RUN_TEST(test_the_status_carries_the_learned_offsets_and_sensor_position);
     RUN_TEST(test_the_innovation_ratio_is_the_frames_ratios_weighted_by_their_rows);
     return UNITY_END();

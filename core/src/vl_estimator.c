@@ -62,6 +62,7 @@ static void keep_sound(vl_estimator_t *e)
 static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
 {
     memset(e, 0, offsetof(vl_estimator_t, P));
+    e->num_held = 0; /* past P, with the workspaces */
     e->cfg = *cfg;
     static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(e->R, I3, sizeof(I3));
@@ -243,6 +244,7 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
         return VL_ERR_NULL;
     }
     vl_work_begin(e);
+    e->num_held = 0; /* rows of the previous frame's pose, which this input moves on from */
     if (!e->initialized) {
         return VL_ERR_NOT_READY;
     }
@@ -372,6 +374,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     /* One cap for both updates: the state size does not change between them. */
     const uint32_t cap = vl_rows_cap(e);
     const uint32_t inliers = vl_rows_limit(e, rows, partitioned, cap);
+    vl_rows_hold(e, inliers, partitioned);
     vl_status_t st = update_and_adapt(e, rows, inliers, partitioned, k, count);
     if (st != VL_OK || rest == 0) {
         e->counters.observations_gated += rest;
@@ -382,6 +385,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
     e->counters.observations_gated += rest - rescued;
     if (cap > 0 && inliers + rescued > cap) {
         e->counters.observations_deferred += inliers + rescued - cap;
+        vl_rows_hold(e, cap - inliers, rescued);
         rescued = cap - inliers;
     }
     vl_work_rescue(e, n, rest, rescued);
@@ -415,6 +419,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         return VL_ERR_NULL;
     }
     vl_work_begin(e);
+    e->num_held = 0;
     if (!e->initialized || !e->have_imu) {
         if (e->initialized) {
             e->counters.frames_rejected++;
@@ -530,6 +535,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     if (st != VL_OK) {
         vl_log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
         result = st;
+        e->num_held = 0; /* nothing after a refused update */
     }
     /* A frame whose update was refused or contradicted the state extends the run;
      * one that corrected the state ends it; one with nothing to use leaves it. */
@@ -552,6 +558,40 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     vl_work_window(e, vl_state_dim(e), count, (uint32_t)(e->counters.landmarks_marginalized - marginalized_before),
                    (uint32_t)(e->counters.landmarks_initialized - admitted_before));
     return guard_divergence(e, VL_INPUT_FRAME, frame->utime, result);
+}
+
+vl_status_t vl_update_deferred(vl_estimator_t *e)
+{
+    if (e == NULL) {
+        return VL_ERR_NULL;
+    }
+    if (e->num_held == 0) {
+        return VL_OK; /* the last step's work stays readable */
+    }
+    vl_work_begin(e);
+    const uint32_t n = vl_state_dim(e);
+    const uint32_t checked = e->num_held;
+    const uint32_t k = vl_rows_from_held(e);
+    e->num_held = 0;
+    vl_work_deferred(e, n, checked, k);
+    /* The innovation ratio stays the frame's own, as its pose carried it. */
+    const double nis = e->innovation_nis;
+    const uint32_t rows = e->innovation_rows;
+    const vl_status_t st = vl_update_apply(e, e->work_rows, k);
+    e->innovation_nis = nis;
+    e->innovation_rows = rows;
+    if (st != VL_OK) {
+        vl_log_msg(e, VL_LOG_ERROR, e->last_frame_utime,
+                   "innovation covariance not positive definite; deferred update refused");
+    } else {
+        e->counters.observations_deferred_used += k;
+    }
+    return guard_divergence(e, VL_INPUT_FRAME, e->last_frame_utime, st);
+}
+
+uint32_t vl_deferred_pending(const vl_estimator_t *e)
+{
+    return e == NULL ? 0u : e->num_held;
 }
 
 /* ---------------------------------------------------------------- output */

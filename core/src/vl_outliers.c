@@ -135,6 +135,7 @@ uint32_t vl_outliers_rescue(vl_estimator_t *e, const vl_stereo_frame_t *frame, v
         vl_la_obs_covariance(vl_P(e), VL_LD, &row, S);
         if (vl_mahalanobis3(S, row.residual) <= e->cfg.gate_chi2) {
             rows[m] = row;
+            e->work_frame_obs[m] = e->work_frame_obs[i]; /* m <= i: nothing yet to read is overwritten */
             e->work_slot[m] = slot;
             m++;
         } else {

@@ -12,6 +12,7 @@
 #include "vl_estimator_internal.h"
 #include "vl_se3.h"
 #include "vl_stereo.h"
+#include "vl_window.h"
 #include "vl_work.h"
 
 /*
@@ -62,23 +63,64 @@ void vl_rows_swap(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t a, uint32_t b)
     e->work_frame_obs[b] = f;
 }
 
+/* The most observations whose joint update on n states fits mflop (the cost grows with the
+ * count), but never none: a frame always corrects the state. */
+static uint32_t rows_fitting(uint32_t n, double mflop)
+{
+    const double budget = mflop * 1e6;
+    uint32_t k = 1;
+    while (k < VL_MAX_FRAME_FEATURES && (double)vl_work_joint_update(n, k + 1u) <= budget) {
+        ++k;
+    }
+    return k;
+}
+
 uint32_t vl_rows_cap(const vl_estimator_t *e)
 {
     uint32_t cap = e->cfg.max_update_observations;
     if (e->cfg.max_update_work > 0.0) {
-        /* The largest count whose update fits the budget (the cost grows with the
-         * count), but never none: a frame always corrects the state. */
-        const uint32_t n = vl_state_dim(e);
-        const double budget = e->cfg.max_update_work * 1e6;
-        uint32_t k = 1;
-        while (k < VL_MAX_FRAME_FEATURES && (double)vl_work_joint_update(n, k + 1u) <= budget) {
-            ++k;
-        }
+        const uint32_t k = rows_fitting(vl_state_dim(e), e->cfg.max_update_work);
         if (cap == 0 || k < cap) {
             cap = k;
         }
     }
     return cap;
+}
+
+void vl_rows_hold(vl_estimator_t *e, uint32_t first, uint32_t end)
+{
+    for (uint32_t i = first; i < end && e->cfg.apply_deferred && e->num_held < VL_MAX_LANDMARKS; ++i) {
+        e->held_obs[e->num_held++] = e->work_frame_obs[i];
+    }
+}
+
+uint32_t vl_rows_from_held(vl_estimator_t *e)
+{
+    vl_la_obs_t *rows = e->work_rows;
+    uint32_t k = 0;
+    for (uint32_t i = 0; i < e->num_held; ++i) {
+        const vl_stereo_obs_t *o = &e->prev_obs[e->held_obs[i]];
+        const int slot = vl_window_find_slot(e, o->id);
+        if (slot < 0 || vl_update_make_row(e, (uint32_t)slot, o, &rows[k]) != 0) {
+            continue;
+        }
+        if (e->cfg.gate_chi2 > 0.0) {
+            double S[9];
+            vl_la_obs_covariance(vl_P(e), VL_LD, &rows[k], S);
+            if (vl_mahalanobis3(S, rows[k].residual) > e->cfg.gate_chi2) {
+                e->counters.observations_gated++;
+                continue;
+            }
+        }
+        e->work_slot[k] = (uint32_t)slot;
+        e->work_frame_obs[k] = e->held_obs[i];
+        k++;
+    }
+    if (e->cfg.max_deferred_work > 0.0) {
+        const uint32_t cap = rows_fitting(vl_state_dim(e), e->cfg.max_deferred_work);
+        k = k < cap ? k : cap;
+    }
+    return k;
 }
 
 /* Does row a's landmark go before row b's: used by fewer updates, then unused for longer. */

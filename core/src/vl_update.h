@@ -38,6 +38,19 @@ uint32_t vl_rows_cap(const vl_estimator_t *e);
 uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m, uint32_t cap);
 
 /**
+ * Holds rows [first, end) (the inliers the time bound deferred) for vl_update_deferred, by
+ * their frame observation (apply_deferred on; none otherwise).
+ */
+void vl_rows_hold(vl_estimator_t *e, uint32_t first, uint32_t end);
+
+/**
+ * The held observations as rows at the current state, in e->work_rows: those whose landmark
+ * is still in the window and that pass the gate again (the others counted in
+ * observations_gated), at most what max_deferred_work allows. Returns how many.
+ */
+uint32_t vl_rows_from_held(vl_estimator_t *e);
+
+/**
  * Joint update with the first m rows, then the state correction it gives
  * (left in e->work_dx). Counts observations_used, or numerical_failures.
  * @return VL_OK, or VL_ERR_NOT_POSITIVE_DEFINITE with P and the state untouched.

@@ -26,7 +26,7 @@
 /* ...counted up to this age: a track already seen 4 frames ranks at 3x its disparity. */
 #define VL_ADMISSION_AGE_CAP 4u
 
-static int find_slot(const vl_estimator_t *e, int32_t id)
+int vl_window_find_slot(const vl_estimator_t *e, int32_t id)
 {
     for (uint32_t s = 0; s < e->num_landmarks; ++s) {
         if (e->slots[s].id == id) {
@@ -102,7 +102,7 @@ uint32_t vl_window_repeat_noise(vl_estimator_t *e, const vl_stereo_frame_t *fram
     uint32_t carried[VL_MAX_LANDMARKS];
     uint32_t n = 0;
     for (uint32_t i = 0; i < count && n < e->num_landmarks; ++i) {
-        const int slot = find_slot(e, frame->obs[i].id);
+        const int slot = vl_window_find_slot(e, frame->obs[i].id);
         if (slot >= 0) {
             carried[n++] = (uint32_t)slot;
         }
@@ -143,7 +143,7 @@ uint32_t vl_window_repeat_noise(vl_estimator_t *e, const vl_stereo_frame_t *fram
 void vl_window_mark_carried(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count)
 {
     for (uint32_t i = 0; i < count; ++i) {
-        const int slot = find_slot(e, frame->obs[i].id);
+        const int slot = vl_window_find_slot(e, frame->obs[i].id);
         if (slot >= 0) {
             e->slots[slot].carried = 1;
         }
@@ -399,7 +399,7 @@ uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, u
             continue;
         }
         const double disparity = o->u_left - o->u_right;
-        const int slot = find_slot(e, o->id);
+        const int slot = vl_window_find_slot(e, o->id);
         if (slot >= 0) {
             if (e->work_seen[slot] != VL_SEEN_NONE) {
                 e->counters.observations_invalid++; /* the same id twice in one frame */

@@ -34,6 +34,9 @@ typedef struct {
 uint32_t vl_window_classify(vl_estimator_t *e, const vl_stereo_frame_t *frame, uint32_t count, double frame_dt,
                             vl_candidates_t *candidates);
 
+/** The window slot of track id, or -1 when it is not in the window. */
+int vl_window_find_slot(const vl_estimator_t *e, int32_t id);
+
 /** Tracks that ended (unseen too long) or broke leave the window for the map. */
 void vl_window_retire(vl_estimator_t *e);
 

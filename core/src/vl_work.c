@@ -172,6 +172,13 @@ void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t re
     e->work.rows += 3u * rescued;
 }
 
+void vl_work_deferred(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t used)
+{
+    add(e, &e->work.update, (uint64_t)checked * (VL_WORK_ROW + VL_WORK_OBS_CHECK) + vl_work_joint_update(n, used));
+    e->work.state_dim = n;
+    e->work.rows += 3u * used;
+}
+
 void vl_work_window(vl_estimator_t *e, uint32_t n, uint32_t observations, uint32_t marginalized, uint32_t admitted)
 {
     /* A marginalization copies 3 columns and 3 rows of P (and hands the landmark's

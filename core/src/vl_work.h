@@ -52,6 +52,9 @@ void vl_work_drift_carry(vl_estimator_t *e, uint32_t count, uint32_t previous);
 /** The rescue pass: checked observations re-linearized and gated, then the joint update of the rescued ones. */
 void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued);
 
+/** The deferred observations after the pose: checked re-linearized and gated, then the joint update of the used. */
+void vl_work_deferred(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t used);
+
 /** The window: rows made for the frame's observations, marginalizations and admissions, on n states. */
 void vl_work_window(vl_estimator_t *e, uint32_t n, uint32_t observations, uint32_t marginalized, uint32_t admitted);
 

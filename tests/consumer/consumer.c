@@ -81,6 +81,10 @@ int main(void)
         if (st == VL_OK && k > 0) {
             make_frame(&cfg.calibration, utime, SPEED * 1e-6 * (double)utime, &frame);
             st = vl_update(&est, &frame);
+            /* the pose is ready here; then what the update's time bound deferred */
+            if (st == VL_OK) {
+                st = vl_update_deferred(&est);
+            }
         }
         if (st != VL_OK) {
             printf("step %d: %s\n", k, vl_status_str(st));

@@ -166,6 +166,8 @@ static void vl_fuzz_on_features(vl_fuzz_daemon_t *d, const uint8_t *payload, siz
     d->inputs_fed = 1;
     (void)vl_update(&g_est, &g_frame);
     vl_fuzz_check_pose("vl_update");
+    (void)vl_update_deferred(&g_est);
+    vl_fuzz_check_pose("vl_update_deferred");
 }
 
 static void vl_fuzz_sink(void *user, const vl_landmark_t *landmark)

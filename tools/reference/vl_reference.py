@@ -403,8 +403,9 @@ class Filter:
         self.prev_frame = np.zeros((0, 5))                 # the previous frame's observations
         self.frame_R, self.frame_p = np.eye(3), np.zeros(3)  # the pose after the previous frame
         self.broken_obs = []
+        self.held, self.held_frame = [], None  # the inliers the time bound deferred: frame indices
         self.counters = {"frames": 0, "updates_refused": 0, "observations_used": 0,
-                         "frames_reassociated": 0, "landmarks_initialized": 0}
+                         "observations_deferred_used": 0, "frames_reassociated": 0, "landmarks_initialized": 0}
 
     @property
     def n(self):
@@ -483,6 +484,7 @@ class Filter:
     def propagate(self, utime, linear, angular):
         """An IMU sample: predict to its time (predict_to_sample), then hold it."""
         linear, angular = np.asarray(linear, float), np.asarray(angular, float)
+        self.held = []  # the previous frame's deferred rows: this input moves on from its pose
         if self.state_utime is None:
             self.state_utime = utime
         elif utime <= self.last_imu_utime or utime < self.state_utime:
@@ -556,6 +558,7 @@ class Filter:
         self._check_silence(utime)
         if len(frame) > MAX_FRAME_FEATURES:
             raise ReferenceError("frame over VL_MAX_FRAME_FEATURES: not modelled")
+        self.held, self.held_frame = [], frame
         repeated = self.repeats_previous(frame)
         had_frame = self.last_frame_utime is not None
         self.predict_to(utime)
@@ -829,6 +832,7 @@ class Filter:
                     j = (i * partitioned) // cap
                     rows[i], rows[j] = rows[j], rows[i]
             used = cap
+            self.hold(rows[used:partitioned])
         ok = self.update_and_adapt(rows, used, rows[partitioned:], len(frame))
         if not ok or rest == 0:
             return ok
@@ -843,8 +847,38 @@ class Filter:
                 self.slots[r.slot].seen = SEEN_BROKEN
                 self.broken_obs.append(r.obs)
         if cap > 0 and used + len(rescued) > cap:
+            self.hold(rescued[cap - used:])
             rescued = rescued[:cap - used]
         return self.apply(rescued)
+
+    def hold(self, rows):
+        """vl_rows_hold: the deferred rows' observations, for update_deferred (apply_deferred)."""
+        if self.cfg["apply_deferred"]:
+            self.held += [r.obs for r in rows]
+
+    def update_deferred(self):
+        """vl_update_deferred, after the frame's pose: the held observations as rows at the corrected
+        state, those that pass the gate again, at most what max_deferred_work allows; the innovation
+        ratio is not the reference's, so nothing else moves."""
+        held, self.held = self.held, []
+        if not held:
+            return True
+        slot_of = {s.id: k for k, s in enumerate(self.slots)}
+        rows = []
+        for i in held:
+            slot = slot_of.get(int(self.held_frame[i][0]))
+            row = None if slot is None else self.make_row(slot, self.held_frame, i)
+            if row is None:
+                continue
+            if self.cfg["gate_chi2"] > 0.0 and mahalanobis3(self.innovation_cov(row), row.residual) > self.cfg["gate_chi2"]:
+                continue
+            rows.append(row)
+        if self.cfg["max_deferred_work"] > 0.0:
+            rows = rows[:self.rows_fitting(self.cfg["max_deferred_work"])]
+        ok = self.apply(rows)
+        if ok:
+            self.counters["observations_deferred_used"] += len(rows)
+        return ok
 
     def keep_least_used(self, rows, m, cap):
         """rotate_deferred: of the first m rows, the cap whose landmarks the updates used least
@@ -868,12 +902,17 @@ class Filter:
         least one."""
         cap = int(self.cfg["max_update_observations"])
         if self.cfg["max_update_work"] > 0.0:
-            n, budget, k = CORE_DIM + 3 * len(self.slots), self.cfg["max_update_work"] * 1e6, 1
-            while k < MAX_FRAME_FEATURES and joint_update_flops(n, k + 1) <= budget:
-                k += 1
+            k = self.rows_fitting(self.cfg["max_update_work"])
             if cap == 0 or k < cap:
                 cap = k
         return cap
+
+    def rows_fitting(self, mflop):
+        """The most observations whose joint update (joint_update_flops) fits mflop, at least one."""
+        n, budget, k = CORE_DIM + 3 * len(self.slots), mflop * 1e6, 1
+        while k < MAX_FRAME_FEATURES and joint_update_flops(n, k + 1) <= budget:
+            k += 1
+        return k
 
     def ransac(self, rows, inlier):
         """1-point RANSAC: each hypothesis is the correction one observation alone would give,
@@ -1404,6 +1443,9 @@ def run(events, cfg, max_steps=None):
             out.utimes.append(ev[1])
             out.rotations.append(f.R.copy())
             out.positions.append(f.p.copy())
+        else:
+            f.held = []  # nothing after a refused update
+        f.update_deferred()  # after the pose, as the session's vl_session_finish
         frames += 1
         if max_steps is not None and frames >= max_steps:
             break

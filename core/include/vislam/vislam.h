@@ -255,6 +255,7 @@ typedef struct {
     X(uint64_t, observations_gated, "refused as outliers (RANSAC or gate, and not rescued)")                        \
     X(uint64_t, observations_rescued, "outliers of the first pass accepted after the correction")                   \
     X(uint64_t, observations_deferred, "inliers left out by max_update_observations or max_update_work")            \
+    X(uint64_t, observations_deferred_used, "of those, applied after the frame's pose (vl_update_deferred)")        \
     X(uint64_t, observations_behind_camera, "predicted behind the camera: not used")                                \
     X(uint64_t, landmarks_initialized, "admitted to the window")                                                    \
     X(uint64_t, landmarks_deferred, "admissions postponed: the window was full, or max_admissions reached")         \
@@ -496,10 +497,14 @@ typedef struct {
     uint8_t work_support[VL_MAX_LANDMARKS];
     uint32_t work_broken[VL_MAX_LANDMARKS];
     uint32_t num_broken;
-    uint8_t work_moved[VL_MAX_FRAME_FEATURES];    /**< the frame's observations whose track contradicted the
+    uint8_t work_moved[VL_MAX_FRAME_FEATURES]; /**< the frame's observations whose track contradicted the
                                                     motion its fellows agree on, or drifted against the
                                                     velocities' (two-view matching) */
-    uint32_t num_work_drift;                      /**< the frame's observations when it is sparse, else 0 */
+    uint32_t num_work_drift;                   /**< the frame's observations when it is sparse, else 0 */
+    /** The last frame's inliers its update deferred under the time bound, as indices into prev_obs:
+     * vl_update_deferred applies them; the next input drops them. */
+    uint32_t num_held;
+    uint32_t held_obs[VL_MAX_LANDMARKS];
     vl_track_drift_t work_drift[VL_DRIFT_TRACKS]; /**< a sparse frame's tracks' drift sums */
 } vl_estimator_t;
 
@@ -665,6 +670,23 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu);
 vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame);
 
 /**
+ * Applies the inliers the last vl_update left out under its time bound
+ * (max_update_work, max_update_observations), re-linearized at the corrected state
+ * and checked against the gate again, within max_deferred_work (apply_deferred on).
+ * Call it after the frame's pose is out and before the next input: the frame's
+ * latency is then vl_update's alone, and what the bound left out still reaches the
+ * state. The next vl_propagate, vl_update or vl_reset drops what was not applied.
+ * Its work is read with vl_get_work like a step's (stage update); with nothing
+ * to apply it returns at once and leaves vl_get_work as the last step left it.
+ * @return VL_OK (also with nothing to apply), VL_ERR_NULL, VL_ERR_NOT_POSITIVE_DEFINITE
+ *         (counted in numerical_failures, as vl_update's), or VL_RESET after a divergence.
+ */
+vl_status_t vl_update_deferred(vl_estimator_t *e);
+
+/** Observations vl_update_deferred would check now: 0 when it has nothing to do (and for NULL). */
+uint32_t vl_deferred_pending(const vl_estimator_t *e);
+
+/**
  * Reads the current pose and its marginal covariance. Never hands out a
  * non-finite pose: VL_ERR_NON_FINITE instead (the divergence guard resets the
  * estimator before that can last beyond one call).
@@ -696,7 +718,7 @@ uint32_t vl_get_state_flags(const vl_estimator_t *e);
 vl_status_t vl_flush_landmarks(vl_estimator_t *e);
 
 /**
- * The work of the last vl_propagate or vl_update call, per stage (zero after
+ * The work of the last vl_propagate, vl_update or vl_update_deferred call, per stage (zero after
  * vl_init and after a refused call). Cheap: a copy; out is zeroed for a NULL e.
  */
 void vl_get_work(const vl_estimator_t *e, vl_work_t *out);

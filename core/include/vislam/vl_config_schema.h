@@ -96,25 +96,36 @@ typedef enum {
     X("estimator", "max_propagation_dt", max_propagation_dt, DOUBLE, 0.5, 0.0, DBL_MAX, 1, "s", \
       "A gap between inputs longer than this is counted (time_gaps) and still propagated.") \
     /* 64 observations (192 rows) keep an update at a full window of 128 under 2 ms at p99.9 \
-       on 0034, for a few decimetres of ATE on 0027 (README). */ \
+       on 0034; what it leaves out goes after the pose (apply_deferred; README). */ \
     X("estimator", "max_update_observations", max_update_observations, UINT32, 64, 0, UINT32_MAX, 0, "", \
       "Most observations one update uses (0: all). A time bound: the update costs about " \
-      "(15 + 3 landmarks)^2 x 3 observations; the inliers left out (see rotate_deferred) stay in " \
-      "the window for later frames.") \
-    /* 18.5 Mflop with rotate_deferred: the costliest step of 0034 at 1.96x the median step's \
-       work, 0027 within 0.05 m (from the start and over 8 starts; README, Bounded work per step). */ \
+      "(15 + 3 landmarks)^2 x 3 observations; the inliers left out go after the frame's pose " \
+      "(apply_deferred).") \
+    /* 18.5 Mflop: the costliest step of 0034 at 1.75x the median step's work; with \
+       apply_deferred the bound costs 0027 no accuracy (README, Bounded work per step). */ \
     X("estimator", "max_update_work", max_update_work, DOUBLE, 18.5, 0.0, DBL_MAX, 0, "Mflop", \
       "Most arithmetic one frame's joint updates may do, in millions of floating-point " \
       "operations (0: no bound). The update with n states and m rows costs about " \
       "n^2 m + n m^2 + m^3 / 3 flops, so the bound admits fewer observations the larger the " \
       "window: a flat worst case. At least one observation is always used; the inliers left " \
-      "out (see rotate_deferred) stay in the window for later frames.") \
+      "out go after the frame's pose (apply_deferred).") \
     /* On: at budgets of 22 Mflop and below the even spread leaves some landmarks never updated \
        (README, Bounded work per step). */ \
     X("estimator", "rotate_deferred", rotate_deferred, BOOL, 1, 0, 1, 0, "", \
       "When a time bound leaves observations out, keep those of the landmarks the updates have " \
       "used least (then longest ago) instead of an evenly spread subset, so that the landmarks " \
       "deferred in one frame go first in the next.") \
+    /* On: what the bound leaves out is still used before the next input, so the bound costs the \
+       pose's latency nothing and the estimate little (README, Bounded work per step). */ \
+    X("estimator", "apply_deferred", apply_deferred, BOOL, 1, 0, 1, 0, "", \
+      "Apply the inliers the time bound left out of a frame's update after the frame's pose is out " \
+      "(vl_update_deferred, which every vislam program calls before its next input), at the corrected " \
+      "state and within max_deferred_work.") \
+    /* As much as the frame's update: over the test bed it keeps what no bound at all gains (0034's \
+       costliest deferred update 84 Mflop unbounded), and a frame's work at most about twice its step's. */ \
+    X("estimator", "max_deferred_work", max_deferred_work, DOUBLE, 18.5, 0.0, DBL_MAX, 0, "Mflop", \
+      "Most arithmetic vl_update_deferred may do for one frame, in millions of floating-point " \
+      "operations (0: no bound); the deferred inliers past it are dropped.") \
     \
     /* ---- [noise] ---- */ \
     /* The seed data's velocities carry about 0.5 m/s and 0.05 rad/s of noise per sample \
