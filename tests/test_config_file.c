@@ -751,7 +751,7 @@ void test_vl_counters_list_names_every_counter_once(void)
 #undef SET_COUNTER
     vl_counter_entry_t e[VL_NUM_COUNTERS];
     TEST_ASSERT_EQUAL_UINT(VL_NUM_COUNTERS, vl_counters_list(&c, e));
-    TEST_ASSERT_EQUAL_UINT(35, VL_NUM_COUNTERS);
+    TEST_ASSERT_EQUAL_UINT(36, VL_NUM_COUNTERS);
     TEST_ASSERT_EQUAL_STRING("imu_accepted", e[0].name);
     TEST_ASSERT_EQUAL_STRING("window_peak", e[VL_NUM_COUNTERS - 1].name);
     for (size_t i = 0; i < VL_NUM_COUNTERS; ++i) {

@@ -1029,6 +1029,7 @@ void test_deferred_observations_are_applied_after_the_pose(void)
     TEST_ASSERT_EQUAL_UINT64(12, c->observations_used);
     TEST_ASSERT_EQUAL_UINT64(7, c->observations_deferred);
     TEST_ASSERT_EQUAL_UINT64(7, c->observations_deferred_used);
+    TEST_ASSERT_EQUAL_UINT64(0, c->observations_deferred_dropped);
     TEST_ASSERT_EQUAL_UINT32(0, vl_deferred_pending(&est));
     vl_work_t w;
     vl_get_work(&est, &w);
@@ -1084,7 +1085,14 @@ void test_deferred_observations_are_dropped_by_the_next_input_or_when_off(void)
     TEST_ASSERT_EQUAL_UINT32(0, vl_deferred_pending(&est));
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
     TEST_ASSERT_EQUAL_UINT64(0, vl_get_counters(&est)->observations_deferred_used);
+    TEST_ASSERT_EQUAL_UINT64(7, vl_get_counters(&est)->observations_deferred_dropped); /* counted, not lost */
     TEST_ASSERT_EQUAL_UINT64(5, vl_get_counters(&est)->observations_used);
+
+    /* A reset between the pose and the deferred update drops them as well, and says so. */
+    twelve_tracks_under_bound(&cfg, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_reset(&est));
+    TEST_ASSERT_EQUAL_UINT32(0, vl_deferred_pending(&est));
+    TEST_ASSERT_EQUAL_UINT64(7, vl_get_counters(&est)->observations_deferred_dropped);
 
     vl_test_kitti_config(&cfg);
     cfg.min_track_length = 1;
@@ -1093,6 +1101,7 @@ void test_deferred_observations_are_dropped_by_the_next_input_or_when_off(void)
     cfg.apply_deferred = 0;
     (void)update_window_of(&cfg, 12);
     TEST_ASSERT_EQUAL_UINT64(7, vl_get_counters(&est)->observations_deferred);
+    TEST_ASSERT_EQUAL_UINT64(7, vl_get_counters(&est)->observations_deferred_dropped);
     TEST_ASSERT_EQUAL_UINT32(0, vl_deferred_pending(&est));
     TEST_ASSERT_EQUAL_INT(VL_ERR_NULL, vl_update_deferred(NULL));
     TEST_ASSERT_EQUAL_UINT32(0, vl_deferred_pending(NULL));
@@ -1110,10 +1119,12 @@ void test_deferred_work_bound_applies_at_least_one(void)
     (void)update_window_of(&cfg, 12);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
     TEST_ASSERT_EQUAL_UINT64(3, vl_get_counters(&est)->observations_deferred_used);
+    TEST_ASSERT_EQUAL_UINT64(4, vl_get_counters(&est)->observations_deferred_dropped); /* past the bound */
     cfg.max_deferred_work = 1e-9;
     (void)update_window_of(&cfg, 12);
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
     TEST_ASSERT_EQUAL_UINT64(1, vl_get_counters(&est)->observations_deferred_used);
+    TEST_ASSERT_EQUAL_UINT64(6, vl_get_counters(&est)->observations_deferred_dropped);
 }
 
 void test_admissions_per_frame_are_bounded_and_the_rest_wait(void)

@@ -118,6 +118,7 @@ static void reset_state(vl_estimator_t *e, int keep_world)
     vl_counters_t counters = old->counters;
     const vl_work_t work = old->work; /* a reset inside a call keeps what the call did */
     counters.landmarks_discarded += old->num_landmarks;
+    counters.observations_deferred_dropped += old->num_held;
     counters.resets++;
     const int have_imu = old->have_imu, have_frame = old->have_frame, imu_silent = old->imu_silent;
     const int64_t state_utime = old->state_utime, last_imu = old->last_imu_utime;
@@ -244,7 +245,7 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
         return VL_ERR_NULL;
     }
     vl_work_begin(e);
-    e->num_held = 0; /* rows of the previous frame's pose, which this input moves on from */
+    vl_rows_drop_held(e); /* rows of the previous frame's pose, which this input moves on from */
     if (!e->initialized) {
         return VL_ERR_NOT_READY;
     }
@@ -419,7 +420,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         return VL_ERR_NULL;
     }
     vl_work_begin(e);
-    e->num_held = 0;
+    vl_rows_drop_held(e);
     if (!e->initialized || !e->have_imu) {
         if (e->initialized) {
             e->counters.frames_rejected++;
@@ -535,7 +536,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     if (st != VL_OK) {
         vl_log_msg(e, VL_LOG_ERROR, frame->utime, "innovation covariance not positive definite; update refused");
         result = st;
-        e->num_held = 0; /* nothing after a refused update */
+        vl_rows_drop_held(e); /* nothing after a refused update */
     }
     /* A frame whose update was refused or contradicted the state extends the run;
      * one that corrected the state ends it; one with nothing to use leaves it. */
@@ -583,6 +584,7 @@ vl_status_t vl_update_deferred(vl_estimator_t *e)
     if (st != VL_OK) {
         vl_log_msg(e, VL_LOG_ERROR, e->last_frame_utime,
                    "innovation covariance not positive definite; deferred update refused");
+        e->counters.observations_deferred_dropped += k;
     } else {
         e->counters.observations_deferred_used += k;
     }

@@ -89,9 +89,19 @@ uint32_t vl_rows_cap(const vl_estimator_t *e)
 
 void vl_rows_hold(vl_estimator_t *e, uint32_t first, uint32_t end)
 {
-    for (uint32_t i = first; i < end && e->cfg.apply_deferred && e->num_held < VL_MAX_LANDMARKS; ++i) {
-        e->held_obs[e->num_held++] = e->work_frame_obs[i];
+    for (uint32_t i = first; i < end; ++i) {
+        if (!e->cfg.apply_deferred || e->num_held >= VL_MAX_LANDMARKS) {
+            e->counters.observations_deferred_dropped++;
+        } else {
+            e->held_obs[e->num_held++] = e->work_frame_obs[i];
+        }
     }
+}
+
+void vl_rows_drop_held(vl_estimator_t *e)
+{
+    e->counters.observations_deferred_dropped += e->num_held;
+    e->num_held = 0;
 }
 
 uint32_t vl_rows_from_held(vl_estimator_t *e)
@@ -102,6 +112,7 @@ uint32_t vl_rows_from_held(vl_estimator_t *e)
         const vl_stereo_obs_t *o = &e->prev_obs[e->held_obs[i]];
         const int slot = vl_window_find_slot(e, o->id);
         if (slot < 0 || vl_update_make_row(e, (uint32_t)slot, o, &rows[k]) != 0) {
+            e->counters.observations_deferred_dropped++; /* its landmark left the window, or turned behind */
             continue;
         }
         if (e->cfg.gate_chi2 > 0.0) {
@@ -118,7 +129,10 @@ uint32_t vl_rows_from_held(vl_estimator_t *e)
     }
     if (e->cfg.max_deferred_work > 0.0) {
         const uint32_t cap = rows_fitting(vl_state_dim(e), e->cfg.max_deferred_work);
-        k = k < cap ? k : cap;
+        if (k > cap) {
+            e->counters.observations_deferred_dropped += k - cap;
+            k = cap;
+        }
     }
     return k;
 }

@@ -43,10 +43,14 @@ uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m, uint32_
  */
 void vl_rows_hold(vl_estimator_t *e, uint32_t first, uint32_t end);
 
+/** The held observations not applied: counted in observations_deferred_dropped, then forgotten. */
+void vl_rows_drop_held(vl_estimator_t *e);
+
 /**
  * The held observations as rows at the current state, in e->work_rows: those whose landmark
  * is still in the window and that pass the gate again (the others counted in
- * observations_gated), at most what max_deferred_work allows. Returns how many.
+ * observations_gated, or observations_deferred_dropped when the landmark is gone), at most
+ * what max_deferred_work allows (the rest dropped). Returns how many.
  */
 uint32_t vl_rows_from_held(vl_estimator_t *e);
 
