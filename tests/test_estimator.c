@@ -1076,7 +1076,7 @@ void test_deferred_update_equals_the_unbounded_joint_update(void)
     TEST_ASSERT_TRUE_MESSAGE(diff <= 1e-6 * scale, "sequential updates differ from the joint one");
 }
 
-void test_deferred_observations_are_dropped_by_the_next_input_or_when_off(void)
+void test_deferred_observations_are_dropped_by_the_next_input_a_reset_or_when_off(void)
 {
     vl_config_t cfg;
     twelve_tracks_under_bound(&cfg, 0);
@@ -1251,7 +1251,7 @@ int main(void)
     RUN_TEST(test_rotated_deferrals_reach_every_landmark_in_turn);
     RUN_TEST(test_deferred_observations_are_applied_after_the_pose);
     RUN_TEST(test_deferred_update_equals_the_unbounded_joint_update);
-    RUN_TEST(test_deferred_observations_are_dropped_by_the_next_input_or_when_off);
+    RUN_TEST(test_deferred_observations_are_dropped_by_the_next_input_a_reset_or_when_off);
     RUN_TEST(test_deferred_work_bound_applies_at_least_one);
     RUN_TEST(test_admissions_per_frame_are_bounded_and_the_rest_wait);
     RUN_TEST(test_update_counts_a_repeated_image_and_nothing_else);

@@ -677,7 +677,8 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame);
  * and checked against the gate again, within max_deferred_work (apply_deferred on).
  * Call it after the frame's pose is out and before the next input: the frame's
  * latency is then vl_update's alone, and what the bound left out still reaches the
- * state. The next vl_propagate, vl_update or vl_reset drops what was not applied.
+ * state. The next vl_propagate, vl_update or vl_reset drops what was not applied
+ * (counted in observations_deferred_dropped, as are those past max_deferred_work).
  * Its work is read with vl_get_work like a step's (stage update); with nothing
  * to apply it returns at once and leaves vl_get_work as the last step left it.
  * @return VL_OK (also with nothing to apply), VL_ERR_NULL, VL_ERR_NOT_POSITIVE_DEFINITE
