@@ -113,12 +113,12 @@ static void reset_state(vl_estimator_t *e, int keep_world)
     if (!keep_world) {
         (void)vl_flush_landmarks(e);
     }
+    vl_rows_drop_held(e);          /* they measure the pose this reset leaves */
     const vl_estimator_t *old = e; /* the fields are copied out before init_state clears them */
     const vl_config_t cfg = old->cfg;
     vl_counters_t counters = old->counters;
     const vl_work_t work = old->work; /* a reset inside a call keeps what the call did */
     counters.landmarks_discarded += old->num_landmarks;
-    counters.observations_deferred_dropped += old->num_held;
     counters.resets++;
     const int have_imu = old->have_imu, have_frame = old->have_frame, imu_silent = old->imu_silent;
     const int64_t state_utime = old->state_utime, last_imu = old->last_imu_utime;
