@@ -257,7 +257,7 @@ typedef struct {
     X(uint64_t, observations_deferred, "inliers left out by max_update_observations or max_update_work")            \
     X(uint64_t, observations_deferred_used, "of those, applied after the frame's pose (vl_update_deferred)")        \
     X(uint64_t, observations_deferred_dropped,                                                                      \
-      "of those, not applied: past max_deferred_work, landmark gone, refused, or the next input came first")        \
+      "of those, not applied: past max_deferred_work, landmark gone, refused, or the next input or a reset first")  \
     X(uint64_t, observations_behind_camera, "predicted behind the camera: not used")                                \
     X(uint64_t, landmarks_initialized, "admitted to the window")                                                    \
     X(uint64_t, landmarks_deferred, "admissions postponed: the window was full, or max_admissions reached")         \
