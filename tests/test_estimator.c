@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "unity.h"
+#include "vl_random_update.h"
 #include "vl_test_util.h"
 #include "vislam/vislam.h"
 #include "vl_linalg.h"
@@ -168,7 +169,7 @@ void test_update_counts_invalid_observations(void)
     frame.obs[1].id = -3;                             /* negative id */
     frame.obs[2].u_right = frame.obs[2].u_left + 2.0; /* negative disparity */
     frame.obs[3].id = frame.obs[4].id;                /* duplicate id */
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     const vl_counters_t *c = vl_get_counters(&est);
     TEST_ASSERT_EQUAL_UINT64(3, c->observations_invalid);
     TEST_ASSERT_EQUAL_UINT64(1, c->observations_low_disparity);
@@ -708,6 +709,79 @@ void test_la_update_refuses_indefinite_innovation_covariance(void)
     TEST_ASSERT_EQUAL_MEMORY(P0, P, sizeof(P));
 }
 
+/* Largest |a - b| over an n x n block of two matrices of leading dimension ld, and largest |a|. */
+static void max_difference(const double *a, const double *b, int ld, int n, double *diff, double *scale)
+{
+    *diff = *scale = 0.0;
+    for (int j = 0; j < n; ++j) {
+        for (int i = 0; i < n; ++i) {
+            *diff = fmax(*diff, fabs(a[j * ld + i] - b[j * ld + i]));
+            *scale = fmax(*scale, fabs(a[j * ld + i]));
+        }
+    }
+}
+
+/* Two updates with the landmark block's downdate left pending (vl_la_update_core, the second
+ * against the first's pending rows), then one downdate of both, against two full updates in
+ * turn: the same corrections and covariance to rounding. In between, the core's rows are current
+ * and an observation's innovation covariance read with the pending rows is the updated one. */
+void test_la_pending_downdate_equals_the_updates_in_turn(void)
+{
+    enum { n = VL_CORE_DIM + 3 * 40, ld = n + 5, k1 = 12, k2 = 7, m = 3 * (k1 + k2) };
+    static double P_full[ld * n], P_lazy[ld * n], G[n * VL_RANDOM_FACTOR_RANK];
+    static double PHt_full[ld * m], S_full[m * m], dx_full[ld], PHt[ld * m], S[m * m], dx[ld];
+    static vl_obs_row_t obs1[k1], obs2[k2];
+    unsigned state = 11u;
+    vl_random_covariance(P_full, ld, n, G, &state);
+    memcpy(P_lazy, P_full, sizeof(P_full));
+    vl_random_observations(obs1, n, k1, &state);
+    vl_random_observations(obs2, n, k2, &state);
+    for (int i = 0; i < k2; i += 2) { /* half on the first update's landmarks, half on others */
+        obs2[i].landmark_col += 3 * 20;
+    }
+    const vl_la_workspace_t full = {PHt_full, S_full, dx_full, NULL, NULL};
+    const vl_la_workspace_t lazy = {PHt, S, dx, NULL, NULL};
+    double diff, scale;
+
+    TEST_ASSERT_EQUAL_INT(0, vl_la_update(P_full, ld, n, obs1, k1, &full, NULL));
+    TEST_ASSERT_EQUAL_INT(0, vl_la_update_core(P_lazy, ld, n, obs1, k1, &lazy, 0, NULL));
+    for (int i = 0; i < n; ++i) {
+        TEST_ASSERT_DOUBLE_WITHIN(1e-12, dx_full[i], dx[i]);
+    }
+    for (int j = 0; j < n; ++j) {
+        for (int i = 0; i < n; ++i) {
+            if (i < VL_CORE_DIM || j < VL_CORE_DIM) { /* the core's rows and columns are current */
+                TEST_ASSERT_DOUBLE_WITHIN(1e-12 * 64.0, P_full[j * ld + i], P_lazy[j * ld + i]);
+            }
+        }
+    }
+    const vl_la_pending_t pending = {PHt, vl_la_padded_rows(n, ld), 3 * k1};
+    for (int i = 0; i < k2; ++i) {
+        double Sa[9], Sb[9];
+        vl_la_obs_covariance(P_lazy, ld, &obs2[i], &pending, Sa);
+        vl_la_obs_covariance(P_full, ld, &obs2[i], NULL, Sb);
+        for (int q = 0; q < 9; ++q) {
+            TEST_ASSERT_DOUBLE_WITHIN(1e-9 * fabs(Sb[q]) + 1e-12, Sb[q], Sa[q]);
+        }
+    }
+    max_difference(P_full, P_lazy, ld, n, &diff, &scale);
+    TEST_ASSERT_TRUE(diff > 1e-3 * scale); /* the landmark block still owes the downdate */
+
+    TEST_ASSERT_EQUAL_INT(0, vl_la_update(P_full, ld, n, obs2, k2, &full, NULL));
+    TEST_ASSERT_EQUAL_INT(0, vl_la_update_core(P_lazy, ld, n, obs2, k2, &lazy, 3 * k1, NULL));
+    for (int i = 0; i < n; ++i) {
+        TEST_ASSERT_DOUBLE_WITHIN(1e-12, dx_full[i], dx[i]);
+    }
+    vl_la_downdate_landmarks(P_lazy, ld, n, &lazy, 3 * (k1 + k2));
+    max_difference(P_full, P_lazy, ld, n, &diff, &scale);
+    TEST_ASSERT_TRUE(diff <= 1e-12 * scale);
+    for (int j = 0; j < n; ++j) {
+        for (int i = 0; i < j; ++i) {
+            TEST_ASSERT_EQUAL_DOUBLE(P_lazy[j * ld + i], P_lazy[i * ld + j]); /* exactly symmetric */
+        }
+    }
+}
+
 void test_la_move_block_leaves_the_exact_marginal(void)
 {
     enum { n = N_TEST };
@@ -760,7 +834,7 @@ void test_flush_hands_every_landmark_to_the_sink_with_its_marginal(void)
     cfg.landmark_sink_user = &sink;
     start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, 12, 100);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     size_t count = 0;
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_landmarks(&est, before, VL_MAX_LANDMARKS, &count));
     TEST_ASSERT_EQUAL_UINT64((uint64_t)(12), (uint64_t)(count));
@@ -801,7 +875,7 @@ void test_window_never_exceeds_its_limit_and_keeps_observed_landmarks(void)
             TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
         }
         make_frame(&cfg, &frame, s.utime, 9, 0); /* the same 9 tracks every frame */
-        TEST_ASSERT_TRUE(vl_update(&est, &frame) >= 0);
+        TEST_ASSERT_TRUE(vl_test_update(&est, &frame) >= 0);
         TEST_ASSERT_LESS_OR_EQUAL_UINT32(5, vl_window_size(&est));
     }
     /* All five admitted landmarks are observed every frame: none may be evicted. */
@@ -813,7 +887,7 @@ void test_window_never_exceeds_its_limit_and_keeps_observed_landmarks(void)
     s.utime = 600000;
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
     make_frame(&cfg, &frame, s.utime, 0, 0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
     TEST_ASSERT_EQUAL_UINT64((uint64_t)(5), (uint64_t)(sink.count));
     TEST_ASSERT_EQUAL_UINT64(vl_get_counters(&est)->landmarks_initialized,
@@ -830,22 +904,22 @@ void test_a_sparse_frame_admits_its_new_tracks_at_first_sight(void)
     /* Fewer observations than first_sight_below: every new track becomes a landmark now. */
     start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, below - 1u, 0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     TEST_ASSERT_EQUAL_UINT32(below - 1u, vl_window_size(&est));
     /* As many: the tracks wait for their second frame (min_track_length). */
     start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, below, 0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
     frame.utime = 1100000;
     frame.obs[0].u_left += 0.25; /* not a repeated image */
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     TEST_ASSERT_EQUAL_UINT32(below, vl_window_size(&est));
     /* 0: never at first sight. */
     cfg.first_sight_below = 0;
     start_at(&cfg, 1000000);
     make_frame(&cfg, &frame, 1000000, 3, 0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     TEST_ASSERT_EQUAL_UINT32(0, vl_window_size(&est));
 }
 
@@ -863,7 +937,7 @@ void test_window_admits_the_largest_disparity_first(void)
     vl_test_observe(&cfg.calibration, far, 1, &frame.obs[0]);
     vl_test_observe(&cfg.calibration, near, 2, &frame.obs[1]);
     vl_test_observe(&cfg.calibration, mid, 3, &frame.obs[2]);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     vl_landmark_t lm;
     size_t count = 0;
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_landmarks(&est, &lm, 1, &count));
@@ -878,7 +952,7 @@ void test_get_landmarks_reports_capacity_shortfall(void)
     cfg.min_track_length = 1;
     start_at(&cfg, 0);
     make_frame(&cfg, &frame, 0, 4, 0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     vl_landmark_t out[2];
     size_t count = 0;
     TEST_ASSERT_EQUAL_INT(VL_ERR_CAPACITY, vl_get_landmarks(&est, out, 2, &count));
@@ -911,7 +985,7 @@ static const vl_counters_t *update_window_of(vl_config_t *cfg, uint32_t n)
     static vl_stereo_frame_t frame;
     vl_imu_sample_t s = start_at(cfg, 0);
     make_frame(cfg, &frame, 0, n, 0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     TEST_ASSERT_EQUAL_UINT32(n, vl_window_size(&est));
     s.utime = 100000;
     TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
@@ -1001,6 +1075,114 @@ void test_rotated_deferrals_reach_every_landmark_in_turn(void)
     TEST_ASSERT_GREATER_THAN_UINT32(0, never);
 }
 
+/* Frame f at rest sees points 2f .. 2f + 11 (each its index as id): each frame ends two tracks
+ * and starts two. The IMU sample at the frame's time comes first. */
+static void tracks_moving_on(const vl_config_t *cfg, vl_estimator_t *e, vl_stereo_frame_t *frame, int f)
+{
+    if (f > 0) {
+        const vl_imu_sample_t s = vl_test_imu_at(100000 * (int64_t)f, 0.0, 0.0);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(e, &s));
+    }
+    frame->utime = 100000 * (int64_t)f;
+    frame->count = 12;
+    for (uint32_t i = 0; i < frame->count; ++i) {
+        double pw[3];
+        const uint32_t point = 2u * (uint32_t)f + i;
+        vl_test_point_ahead(point, pw);
+        vl_test_observe(&cfg->calibration, pw, (int32_t)point, &frame->obs[i]);
+    }
+}
+
+/* vl_update leaves the pose final: the landmark block's downdate and the window's upkeep after
+ * it (vl_update_deferred) move neither the pose nor its covariance, and what is read of the
+ * landmarks in between is what they hold afterwards. */
+void test_the_pose_is_final_at_vl_update_and_the_upkeep_follows_it(void)
+{
+    static vl_stereo_frame_t frame;
+    static vl_landmark_t during[VL_MAX_LANDMARKS], after[VL_MAX_LANDMARKS];
+    vl_config_t cfg;
+    vl_test_kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.max_update_work = 0.0; /* nothing held back: vl_update_deferred does the upkeep alone */
+    (void)start_at(&cfg, 0);
+    const vl_counters_t *c = vl_get_counters(&est);
+    uint32_t compared = 0;
+    for (int f = 0; f < 10; ++f) {
+        tracks_moving_on(&cfg, &est, &frame, f);
+        const uint64_t admitted = c->landmarks_initialized, marginalized = c->landmarks_marginalized;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+        TEST_ASSERT_TRUE(vl_deferred_due(&est));
+        TEST_ASSERT_EQUAL_UINT64(admitted, c->landmarks_initialized); /* the upkeep waits */
+        TEST_ASSERT_EQUAL_UINT64(marginalized, c->landmarks_marginalized);
+        vl_pose_t a, b;
+        memset(&a, 0, sizeof(a));
+        memset(&b, 0, sizeof(b));
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &a));
+        size_t n_during = 0, n_after = 0;
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_landmarks(&est, during, VL_MAX_LANDMARKS, &n_during));
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
+        TEST_ASSERT_FALSE(vl_deferred_due(&est));
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_pose(&est, &b));
+        TEST_ASSERT_EQUAL_MEMORY(&a, &b, sizeof(a));
+        TEST_ASSERT_TRUE(c->landmarks_initialized > admitted);
+        TEST_ASSERT_TRUE(f < 2 || c->landmarks_marginalized > marginalized);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_get_landmarks(&est, after, VL_MAX_LANDMARKS, &n_after));
+        for (size_t i = 0; i < n_during; ++i) {
+            for (size_t j = 0; j < n_after; ++j) {
+                if (after[j].id != during[i].id) {
+                    continue;
+                }
+                TEST_ASSERT_EQUAL_MEMORY(during[i].position, after[j].position, sizeof(after[j].position));
+                for (int q = 0; q < 9; ++q) {
+                    TEST_ASSERT_DOUBLE_WITHIN(1e-12 * fabs(after[j].covariance[0]), after[j].covariance[q],
+                                              during[i].covariance[q]);
+                }
+                compared++;
+            }
+        }
+    }
+    TEST_ASSERT_TRUE(compared > 50);
+}
+
+/* A caller that never calls vl_update_deferred gets the same estimate: the next input does the
+ * frame's work after the pose first, in the same order (the held inliers are off here, as they
+ * would be dropped). */
+void test_the_next_input_does_the_upkeep_vl_update_deferred_was_not_called_for(void)
+{
+    static vl_estimator_t other;
+    static vl_stereo_frame_t frame;
+    vl_config_t cfg;
+    vl_test_kitti_config(&cfg);
+    cfg.min_track_length = 1;
+    cfg.apply_deferred = 0;
+    cfg.max_update_observations = 8; /* some inliers held back, and dropped alike */
+    (void)start_at(&cfg, 0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_init(&other, &cfg));
+    const vl_imu_sample_t s0 = vl_test_imu_at(0, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&other, &s0));
+    for (int f = 0; f < 10; ++f) {
+        tracks_moving_on(&cfg, &est, &frame, f);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est));
+        tracks_moving_on(&cfg, &other, &frame, f);
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&other, &frame));
+    }
+    const vl_imu_sample_t s = vl_test_imu_at(1000000, 0.0, 0.0);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&other, &s));
+    TEST_ASSERT_FALSE(vl_deferred_due(&other));
+    TEST_ASSERT_EQUAL_UINT32(vl_state_dim(&est), vl_state_dim(&other));
+    TEST_ASSERT_TRUE(vl_get_counters(&est)->observations_deferred_dropped > 0);
+    TEST_ASSERT_EQUAL_MEMORY(vl_get_counters(&est), vl_get_counters(&other), sizeof(vl_counters_t));
+    TEST_ASSERT_EQUAL_MEMORY(est.R, other.R, sizeof(est.R));
+    TEST_ASSERT_EQUAL_MEMORY(est.p, other.p, sizeof(est.p));
+    TEST_ASSERT_EQUAL_MEMORY(est.landmark_state, other.landmark_state, sizeof(double) * 3u * est.num_landmarks);
+    const uint32_t n = vl_state_dim(&est);
+    for (uint32_t j = 0; j < n; ++j) {
+        TEST_ASSERT_EQUAL_MEMORY(&est.P[(size_t)j * VL_COV_LD], &other.P[(size_t)j * VL_COV_LD], sizeof(double) * n);
+    }
+}
+
 /* Two frames of the same 12 tracks at rest under a 5-observation bound, the noise fixed; the
  * second frame's deferred observations applied (vl_update_deferred) when apply is set. */
 static void twelve_tracks_under_bound(vl_config_t *cfg, int apply)
@@ -1062,6 +1244,7 @@ void test_deferred_update_equals_the_unbounded_joint_update(void)
     memcpy(P_deferred, est.P, sizeof(P_deferred));
     cfg.max_update_observations = 0;
     (void)update_window_of(&cfg, 12);
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update_deferred(&est)); /* its landmark block's downdate */
     TEST_ASSERT_EQUAL_UINT64(12, vl_get_counters(&est)->observations_used);
     TEST_ASSERT_EQUAL_UINT32(n, vl_state_dim(&est));
     double scale = 0.0, diff = 0.0;
@@ -1142,7 +1325,7 @@ void test_admissions_per_frame_are_bounded_and_the_rest_wait(void)
             TEST_ASSERT_EQUAL_INT(VL_OK, vl_propagate(&est, &s));
         }
         make_frame(&cfg, &frame, s.utime, 12, 0); /* the same 12 tracks, at rest */
-        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
         TEST_ASSERT_EQUAL_UINT32(expected[f], vl_window_size(&est));
     }
     const vl_counters_t *c = vl_get_counters(&est);
@@ -1172,7 +1355,7 @@ static void two_landmarks_then_a_jump(int64_t last, double du, double dv, vl_pos
     cfg.min_track_length = 1;
     vl_imu_sample_t s = start_at(&cfg, 0);
     make_frame(&cfg, &frame, 0, 2, 0);
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     TEST_ASSERT_EQUAL_UINT32(2, vl_window_size(&est));
     for (int64_t step = 1; step <= last; ++step) {
         s.utime = 100000 * step;
@@ -1240,6 +1423,7 @@ int main(void)
     RUN_TEST(test_propagate_integrates_the_line_between_instantaneous_samples);
     RUN_TEST(test_la_update_equals_dense_kalman_formula);
     RUN_TEST(test_la_update_refuses_indefinite_innovation_covariance);
+    RUN_TEST(test_la_pending_downdate_equals_the_updates_in_turn);
     RUN_TEST(test_la_move_block_leaves_the_exact_marginal);
     RUN_TEST(test_flush_hands_every_landmark_to_the_sink_with_its_marginal);
     RUN_TEST(test_window_never_exceeds_its_limit_and_keeps_observed_landmarks);
@@ -1253,6 +1437,8 @@ int main(void)
     RUN_TEST(test_deferred_update_equals_the_unbounded_joint_update);
     RUN_TEST(test_deferred_observations_are_dropped_by_the_next_input_a_reset_or_when_off);
     RUN_TEST(test_deferred_work_bound_applies_at_least_one);
+    RUN_TEST(test_the_pose_is_final_at_vl_update_and_the_upkeep_follows_it);
+    RUN_TEST(test_the_next_input_does_the_upkeep_vl_update_deferred_was_not_called_for);
     RUN_TEST(test_admissions_per_frame_are_bounded_and_the_rest_wait);
     RUN_TEST(test_update_counts_a_repeated_image_and_nothing_else);
     RUN_TEST(test_repeat_noise_moves_the_observed_landmarks_together_and_nothing_else);

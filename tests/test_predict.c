@@ -302,7 +302,7 @@ void test_samples_defer_and_a_frame_settles(void)
         vl_test_point_ahead(i, pw);
         vl_test_observe(&cfg.calibration, pw, (int32_t)i, &frame.obs[i]);
     }
-    TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &frame));
+    TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &frame));
     TEST_ASSERT_EQUAL_UINT32(20, vl_window_size(&est));
     TEST_ASSERT_EQUAL_UINT32(0, est.deferred.steps);
     for (int k = 0; k < 5; ++k) {

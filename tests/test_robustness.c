@@ -535,7 +535,7 @@ void test_a_track_drifting_against_the_velocities_breaks_and_stays_out(void)
             f.obs[1].u_left += 4.0 * (double)(k - start + 1);
             f.obs[1].u_right += 4.0 * (double)(k - start + 1);
         }
-        TEST_ASSERT_EQUAL_INT(VL_OK, vl_update(&est, &f));
+        TEST_ASSERT_EQUAL_INT(VL_OK, vl_test_update(&est, &f));
         const uint64_t broken = vl_get_counters(&est)->tracks_inconsistent;
         if (k < start) {
             TEST_ASSERT_EQUAL_UINT64(0u, broken); /* standing tracks */

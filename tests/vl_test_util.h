@@ -94,6 +94,16 @@ static inline void vl_test_frame_ahead(const vl_calibration_t *cal, vl_stereo_fr
     }
 }
 
+/** A frame as the programs apply it (vl_session_input, then vl_session_finish): vl_update, then
+ * vl_update_deferred, its work after the pose. Returns vl_update's status, or the second's when
+ * only that one failed. */
+static inline vl_status_t vl_test_update(vl_estimator_t *e, const vl_stereo_frame_t *f)
+{
+    const vl_status_t st = vl_update(e, f);
+    const vl_status_t after = vl_update_deferred(e);
+    return (st == VL_OK && after != VL_OK) ? after : st;
+}
+
 /** A real drive's start and the seed data's frame period, us. */
 #define VL_TEST_T0_US 1317386436000000LL
 #define VL_TEST_STEP_US 100000LL

@@ -45,6 +45,27 @@ typedef char vl_assert_pending_capacity[(VL_MAX_PENDING >= VL_MAX_FRAME_FEATURES
 
 /* ---------------------------------------------------------------- life cycle */
 
+/*
+ * The last vl_update's work after its pose: the landmark block's downdate, then the
+ * window's upkeep (tracks that ended or broke leave for the map, then admissions,
+ * best first), which read P current. Neither moves the pose nor its covariance.
+ */
+static void complete_frame(vl_estimator_t *e)
+{
+    if (!e->frame_open) {
+        return;
+    }
+    e->frame_open = 0;
+    vl_work_downdate(e, vl_state_dim(e), e->pending_cols);
+    vl_update_downdate(e);
+    const uint64_t marginalized_before = e->counters.landmarks_marginalized;
+    const uint64_t admitted_before = e->counters.landmarks_initialized;
+    vl_window_retire(e);
+    vl_window_admit(e, e->prev_obs, &e->work_candidates);
+    vl_work_window(e, vl_state_dim(e), 0u, (uint32_t)(e->counters.landmarks_marginalized - marginalized_before),
+                   (uint32_t)(e->counters.landmarks_initialized - admitted_before));
+}
+
 /* The pose, the parameters and the core block of P now become what a divergence goes back to. */
 static void keep_sound(vl_estimator_t *e)
 {
@@ -63,6 +84,9 @@ static void init_state(vl_estimator_t *e, const vl_config_t *cfg)
 {
     memset(e, 0, offsetof(vl_estimator_t, P));
     e->num_held = 0; /* past P, with the workspaces */
+    e->frame_open = 0;
+    e->pending_cols = 0;
+    e->work_candidates.count = 0;
     e->cfg = *cfg;
     static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(e->R, I3, sizeof(I3));
@@ -245,6 +269,7 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu)
         return VL_ERR_NULL;
     }
     vl_work_begin(e);
+    complete_frame(e);
     vl_rows_drop_held(e); /* rows of the previous frame's pose, which this input moves on from */
     if (!e->initialized) {
         return VL_ERR_NOT_READY;
@@ -389,7 +414,7 @@ static vl_status_t fuse_rows(vl_estimator_t *e, const vl_stereo_frame_t *frame, 
         vl_rows_hold(e, cap - inliers, rescued);
         rescued = cap - inliers;
     }
-    vl_work_rescue(e, n, rest, rescued);
+    vl_work_rescue(e, n, rest, rescued, e->pending_cols);
     return vl_update_apply(e, rows, rescued);
 }
 
@@ -420,6 +445,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         return VL_ERR_NULL;
     }
     vl_work_begin(e);
+    complete_frame(e);
     vl_rows_drop_held(e);
     if (!e->initialized || !e->have_imu) {
         if (e->initialized) {
@@ -516,8 +542,7 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     /* 2. Observations of window landmarks become rows; the others feed the candidates. */
     memset(e->work_seen, VL_SEEN_NONE, sizeof(e->work_seen));
     e->num_broken = 0;
-    vl_candidates_t candidates;
-    candidates.count = 0;
+    e->work_candidates.count = 0;
     if (e->cfg.repeat_track_walk > 0.0) {
         vl_work_carried_walk(e, vl_window_carried_walk(e));
         if (repeated && had_frame) {
@@ -527,7 +552,8 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
     if (repeated && had_frame && e->cfg.repeat_anchor_noise > 0.0) {
         vl_work_repeat_noise(e, vl_window_repeat_noise(e, frame, count));
     }
-    const uint32_t k = vl_window_classify(e, frame, count, frame_dt, &candidates);
+    const uint32_t k = vl_window_classify(e, frame, count, frame_dt, &e->work_candidates);
+    vl_work_window(e, vl_state_dim(e), count, 0u, 0u);
 
     /* 3. Outlier rejection and the joint update. */
     const uint64_t reassociated_before = e->counters.frames_reassociated;
@@ -546,18 +572,13 @@ vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame)
         e->failed_frame_run = 0;
     }
 
-    /* 4. Tracks that ended or broke leave the window for the map. */
-    const uint64_t marginalized_before = e->counters.landmarks_marginalized;
-    const uint64_t admitted_before = e->counters.landmarks_initialized;
-    vl_window_retire(e);
-    /* 5. Admissions, best first, including the restarts of broken tracks. */
-    vl_window_admit(e, frame, &candidates);
+    /* 4. The pose is final. The landmark block's downdate and the window's upkeep (tracks
+     * that ended or broke leave for the map, admissions) come after it: complete_frame. */
+    e->frame_open = 1;
     note_frame_velocity(e, frame_dt, had_frame);
     memcpy(e->frame_R, e->R, sizeof(e->R));
     memcpy(e->frame_p, e->p, sizeof(e->p));
     e->unknown_motion = 0; /* the frame's adaptation has seen it */
-    vl_work_window(e, vl_state_dim(e), count, (uint32_t)(e->counters.landmarks_marginalized - marginalized_before),
-                   (uint32_t)(e->counters.landmarks_initialized - admitted_before));
     return guard_divergence(e, VL_INPUT_FRAME, frame->utime, result);
 }
 
@@ -566,10 +587,14 @@ vl_status_t vl_update_deferred(vl_estimator_t *e)
     if (e == NULL) {
         return VL_ERR_NULL;
     }
-    if (e->num_held == 0) {
+    if (!e->frame_open && e->num_held == 0) {
         return VL_OK; /* the last step's work stays readable */
     }
     vl_work_begin(e);
+    complete_frame(e);
+    if (e->num_held == 0) {
+        return VL_OK;
+    }
     const uint32_t n = vl_state_dim(e);
     const uint32_t checked = e->num_held;
     const uint32_t k = vl_rows_from_held(e);
@@ -579,6 +604,7 @@ vl_status_t vl_update_deferred(vl_estimator_t *e)
     const double nis = e->innovation_nis;
     const uint32_t rows = e->innovation_rows;
     const vl_status_t st = vl_update_apply(e, e->work_rows, k);
+    vl_update_downdate(e);
     e->innovation_nis = nis;
     e->innovation_rows = rows;
     if (st != VL_OK) {
@@ -594,6 +620,11 @@ vl_status_t vl_update_deferred(vl_estimator_t *e)
 uint32_t vl_deferred_pending(const vl_estimator_t *e)
 {
     return e == NULL ? 0u : e->num_held;
+}
+
+int vl_deferred_due(const vl_estimator_t *e)
+{
+    return e != NULL && (e->frame_open || e->num_held > 0);
 }
 
 /* ---------------------------------------------------------------- output */
@@ -676,6 +707,7 @@ vl_status_t vl_flush_landmarks(vl_estimator_t *e)
     if (e == NULL) {
         return VL_ERR_NULL;
     }
+    complete_frame(e);
     vl_predict_settle(e);
     /* Marginalize from the end so no block moves. */
     while (e->num_landmarks > 0) {

@@ -114,7 +114,8 @@ struct update_blocks {
     MatMap *P;      /* padded rows (see vl_la_update) */
     Eigen::Index n; /* the state's dimension: P's columns to downdate */
     const DenseMap *S;
-    DenseMap *W; /* padded rows */
+    DenseMap *W;        /* padded rows */
+    Eigen::Index first; /* the downdate's first column (and row) */
 };
 
 uint32_t block_count(Eigen::Index size, Eigen::Index block)
@@ -131,25 +132,25 @@ void whiten_task(void *arg, uint32_t index)
     solve_right_lower_transpose(*u->S, u->W->middleRows(r, h));
 }
 
-/* Lower triangle of P -= W W^T for one panel of columns (rows down to the padding). */
+/* Lower triangle of P -= W W^T for one panel of columns from u->first (rows down to the padding). */
 void downdate_task(void *arg, uint32_t index)
 {
     const update_blocks *u = static_cast<const update_blocks *>(arg);
     const Eigen::Index rows = u->P->rows();
-    const Eigen::Index j = static_cast<Eigen::Index>(index) * kPanel;
+    const Eigen::Index j = u->first + static_cast<Eigen::Index>(index) * kPanel;
     const Eigen::Index b = (u->n - j < kPanel) ? u->n - j : kPanel;
     subtract_product_bt(u->P->block(j, j, rows - j, b), u->W->middleRows(j, rows - j), u->W->middleRows(j, b));
 }
 
-/* Below this many flops in its blocks an update runs them on the calling thread: waking a
- * worker and sharing the panels cost more than half of a median update saves (README "Two
- * cores"), so only the costly updates, the tail, are shared. */
-constexpr double kParallelMinFlops = 16e6;
+/* Below this many flops in its blocks a loop (the whitening, or the landmark block's
+ * downdate) runs them on the calling thread: waking a worker and sharing the panels cost more
+ * than half of a median update saves (README "Two cores"), so only the costly updates, the
+ * tail, are shared. Measured as 16 Mflop for an update's two loops together, about 8 each. */
+constexpr double kParallelMinFlops = 8e6;
 
-bool worth_sharing(const vl_la_workspace_t *ws, Eigen::Index n, Eigen::Index m)
+bool worth_sharing(const vl_la_workspace_t *ws, double flops)
 {
-    const double nd = static_cast<double>(n), md = static_cast<double>(m);
-    return ws->parallel_for != nullptr && nd * (nd + 1.0) * md + nd * md * (md + 1.0) >= kParallelMinFlops;
+    return ws->parallel_for != nullptr && flops >= kParallelMinFlops;
 }
 
 void run_blocks(bool shared, const vl_la_workspace_t *ws, vl_parallel_task_fn task, update_blocks *u, uint32_t count)
@@ -254,6 +255,25 @@ void settle_rows(const settle_core &c, const double *point, RowsT &&rows, Eigen:
     Z_rot = Z.middleCols<3>(3);
 }
 
+/* W_l W_l^T for the three rows of W from row c: one pass over W's columns (three
+ * neighbouring doubles each), where a general product would cost more to set up. */
+Eigen::Matrix3d pending_share(const vl_la_pending_t &p, int c)
+{
+    double s00 = 0.0, s10 = 0.0, s20 = 0.0, s11 = 0.0, s21 = 0.0, s22 = 0.0;
+    const double *w = p.W + c;
+    for (int j = 0; j < p.cols; ++j, w += p.rows) {
+        s00 += w[0] * w[0];
+        s10 += w[1] * w[0];
+        s20 += w[2] * w[0];
+        s11 += w[1] * w[1];
+        s21 += w[2] * w[1];
+        s22 += w[2] * w[2];
+    }
+    Eigen::Matrix3d B;
+    B << s00, s10, s20, s10, s11, s21, s20, s21, s22;
+    return B;
+}
+
 } // namespace
 
 extern "C" void vl_la_configure(void)
@@ -351,7 +371,8 @@ extern "C" void vl_la_settled_landmark(const double *Pbuf, int ld, int col, cons
     B.noalias() += Z_rot * Lam.transpose();
 }
 
-extern "C" void vl_la_obs_covariance(const double *Pbuf, int ld, const vl_la_obs_t *obs, double S_rm[9])
+extern "C" void vl_la_obs_covariance(const double *Pbuf, int ld, const vl_la_obs_t *obs, const vl_la_pending_t *pending,
+                                     double S_rm[9])
 {
     no_heap_scope guard;
     const int n = obs->landmark_col + 3;
@@ -365,6 +386,9 @@ extern "C" void vl_la_obs_covariance(const double *Pbuf, int ld, const vl_la_obs
     B.topRightCorner<6, 3>() = P.block<6, 3>(0, c);
     B.bottomLeftCorner<3, 6>() = P.block<3, 6>(c, 0);
     B.bottomRightCorner<3, 3>() = P.block<3, 3>(c, c);
+    if (pending != nullptr && pending->cols > 0 && c >= VL_CORE_DIM) {
+        B.bottomRightCorner<3, 3>() -= pending_share(*pending, c);
+    }
     Eigen::Matrix<double, 3, 9> H;
     H << Hp, Hl;
     Eigen::Map<Mat33> S(S_rm);
@@ -395,24 +419,42 @@ extern "C" int vl_la_single_correction(const double *Pbuf, int ld, int n, const 
     return 0;
 }
 
-extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws,
-                            double *nis)
+namespace
+{
+
+/* P's rows the whitening and the downdates run on: n rounded up to whole 4-row packets (a
+ * remainder row takes Eigen's scalar path in every product slab, 7% of a full window's
+ * update at n = 399, README "Results"), within the room ld leaves. */
+Eigen::Index padded_rows(int n, int ld)
+{
+    return std::min<Eigen::Index>((static_cast<Eigen::Index>(n) + 3) / 4 * 4, ld);
+}
+
+} // namespace
+
+extern "C" int vl_la_padded_rows(int n, int ld)
+{
+    return static_cast<int>(padded_rows(n, ld));
+}
+
+extern "C" int vl_la_update_core(double *Pbuf, int ld, int n, const vl_la_obs_t *obs, int k,
+                                 const vl_la_workspace_t *ws, int pending, double *nis)
 {
     no_heap_scope guard;
     const Eigen::Index m = 3 * static_cast<Eigen::Index>(k);
-    const bool shared = worth_sharing(ws, n, m);
+    const Eigen::Index np = padded_rows(n, ld);
+    const Eigen::Index nl = np - VL_CORE_DIM; /* the landmark rows, padding included */
+    const double nd = static_cast<double>(n), md = static_cast<double>(m);
+    const bool shared = worth_sharing(ws, nd * md * (md + 1.0));
     if (shared) {
         ws->parallel_for(ws->parallel_ctx, whiten_task, nullptr, 0); /* the blocks come after S's factorization */
     }
-    /* The whitening and the downdate run on n rounded up to whole 4-row packets: a
-     * remainder row takes Eigen's scalar path in every product slab, 7% of a full
-     * window's update at n = 399 (README "Results"). P's rows past n belong to no
-     * state and are zeroed, as are W's: the padding changes no state row. It takes
-     * the room ld leaves, none when ld = n. */
-    const Eigen::Index np = std::min<Eigen::Index>((static_cast<Eigen::Index>(n) + 3) / 4 * 4, ld);
+    /* P's rows past n belong to no state and are zeroed, as are W's: the padding changes
+     * no state row. */
     MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
     MatMap Ppad(Pbuf, np, n, Eigen::OuterStride<>(ld));
-    DenseMap PHt(ws->PHt, np, m);
+    const DenseMap Wold(ws->PHt, np, pending);
+    DenseMap PHt(ws->PHt + np * pending, np, m);
     DenseMap S(ws->S, m, m);
     Eigen::Map<Eigen::VectorXd> dx(ws->dx, np);
 
@@ -426,6 +468,20 @@ extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs,
         block.noalias() += P.middleCols<3>(obs[i].landmark_col) * Hl.transpose();
     }
     PHt.bottomRows(np - n).setZero();
+    if (pending > 0) {
+        /* The pending downdate's share: on the landmark rows, the landmark columns read
+         * P - Wold Wold^T, so P H^T loses Wold (Hl Wold_l)^T, with X = H_l Wold_l (m x pending)
+         * held past S. */
+        DenseMap X(ws->S + m * m, m, pending);
+        for (int i = 0; i < k; ++i) {
+            const Eigen::Map<const Mat33> Hl(obs[i].H_landmark);
+            X.middleRows<3>(3 * i).noalias() = Hl * Wold.middleRows<3>(obs[i].landmark_col);
+        }
+        for (Eigen::Index c = 0; c < m; c += kPanel) {
+            const Eigen::Index b = (m - c < kPanel) ? m - c : kPanel;
+            subtract_product_bt(PHt.block(VL_CORE_DIM, c, nl, b), Wold.bottomRows(nl), X.middleRows(c, b));
+        }
+    }
 
     /* S = H (P H^T) + R, again reading only the rows each observation touches.
      * Only the lower triangle is needed by the factorization. */
@@ -458,15 +514,60 @@ extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs,
     if (nis != nullptr) {
         *nis = e.squaredNorm();
     }
-    update_blocks blocks = {&Ppad, n, &S, &PHt};
+    update_blocks blocks = {&Ppad, n, &S, &PHt, 0};
     run_blocks(shared, ws, whiten_task, &blocks, block_count(np, kProductRows));
     dx.noalias() = PHt * e;
 
-    /* P - W W^T on the lower triangle, then mirrored, so P stays exactly symmetric. */
-    Ppad.bottomRows(np - n).setZero();
-    run_blocks(shared, ws, downdate_task, &blocks, block_count(n, kPanel));
-    mirror_lower_to_upper(P);
+    /* The core's columns now, rows and columns alike, so every read of the pose and the
+     * parameters is current: P - W W^T on them, the core block from its lower triangle. */
+    subtract_product_bt(P.leftCols<VL_CORE_DIM>(), PHt.topRows(n), PHt.topRows<VL_CORE_DIM>());
+    P.topRows<VL_CORE_DIM>().rightCols(n - VL_CORE_DIM) =
+        P.bottomRows(n - VL_CORE_DIM).leftCols<VL_CORE_DIM>().transpose();
+    for (Eigen::Index j = 1; j < VL_CORE_DIM; ++j) {
+        P.col(j).head(j) = P.row(j).head(j).transpose();
+    }
     return 0;
+}
+
+extern "C" void vl_la_downdate_landmarks(double *Pbuf, int ld, int n, const vl_la_workspace_t *ws, int cols)
+{
+    no_heap_scope guard;
+    if (cols <= 0 || n <= VL_CORE_DIM) {
+        return;
+    }
+    const Eigen::Index np = padded_rows(n, ld);
+    const double nl = static_cast<double>(n - VL_CORE_DIM);
+    const bool shared = worth_sharing(ws, nl * (nl + 1.0) * static_cast<double>(cols));
+    MatMap P(Pbuf, n, n, Eigen::OuterStride<>(ld));
+    MatMap Ppad(Pbuf, np, n, Eigen::OuterStride<>(ld));
+    DenseMap W(ws->PHt, np, cols);
+    Ppad.bottomRows(np - n).setZero();
+    update_blocks blocks = {&Ppad, n, nullptr, &W, VL_CORE_DIM};
+    run_blocks(shared, ws, downdate_task, &blocks, block_count(n - VL_CORE_DIM, kPanel));
+    for (Eigen::Index j = VL_CORE_DIM + 1; j < n; ++j) { /* mirrored, so P stays exactly symmetric */
+        P.col(j).segment(VL_CORE_DIM, j - VL_CORE_DIM) = P.row(j).segment(VL_CORE_DIM, j - VL_CORE_DIM).transpose();
+    }
+}
+
+extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws,
+                            double *nis)
+{
+    if (vl_la_update_core(Pbuf, ld, n, obs, k, ws, 0, nis) != 0) {
+        return -1;
+    }
+    vl_la_downdate_landmarks(Pbuf, ld, n, ws, 3 * k);
+    return 0;
+}
+
+extern "C" void vl_la_pending_share(const vl_la_pending_t *pending, int col, double block[9])
+{
+    no_heap_scope guard;
+    Eigen::Map<Eigen::Matrix3d> B(block);
+    if (pending == nullptr || pending->cols <= 0 || col < VL_CORE_DIM) {
+        B.setZero();
+        return;
+    }
+    B = pending_share(*pending, col);
 }
 
 extern "C" void vl_la_append_landmark(double *Pbuf, int ld, int n, const double J_pose_rm[18], const double J_obs_rm[9],

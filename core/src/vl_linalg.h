@@ -74,12 +74,27 @@ void vl_la_settled_landmark(const double *P, int ld, int col, const vl_deferred_
                             double cross[3 * VL_CORE_DIM], double block[9]);
 
 /**
+ * A downdate of P's landmark block (rows and columns from VL_CORE_DIM on) not
+ * applied yet: there P stands for P - W W^T, W the first cols columns of a
+ * column-major buffer of `rows` rows (vl_la_padded_rows). Outside that block P
+ * is current.
+ */
+typedef struct {
+    const double *W;
+    int rows;
+    int cols;
+} vl_la_pending_t;
+
+/** The rows the update's products run on for n states: n rounded up to a multiple of 4, at most ld. */
+int vl_la_padded_rows(int n, int ld);
+
+/**
  * Joint EKF update with k stereo observations (m = 3k rows), touching only the
  * observed columns to form P H^T, one Cholesky factorization of S = H P H^T + R
  * and a symmetric rank-m downdate P -= (P H^T L^-T)(P H^T L^-T)^T.
  * The whitening W = P H^T L^-T (by blocks of rows) and the downdate (by panels
- * of columns) go through ws->parallel_for when set and the update is costly
- * (16 Mflop in them): the blocks are fixed by the dimensions alone and written
+ * of columns) go through ws->parallel_for when set and the loop is costly
+ * (8 Mflop in its blocks): the blocks are fixed by the dimensions alone and written
  * by disjoint tasks, so P and dx are bit-identical however many threads run them.
  * They run on n4 = min(n rounded up to a multiple of 4, ld) rows: P's rows n..n4-1,
  * which belong to no state, are overwritten with zeros.
@@ -91,6 +106,26 @@ void vl_la_settled_landmark(const double *P, int ld, int col, const vl_deferred_
  *         positive definite (P is then unchanged).
  */
 int vl_la_update(double *P, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws, double *nis);
+
+/**
+ * vl_la_update up to the landmark block's downdate, against P with the downdate of
+ * ws->PHt's first `pending` columns still to come (vl_la_pending_t): the update's W
+ * goes to ws->PHt's columns [pending, pending + 3k) (rows as vl_la_padded_rows), the
+ * core's rows and columns of P are downdated now, and the landmark block's downdate
+ * by all pending + 3k columns is left to vl_la_downdate_landmarks. The correction
+ * is the full update's. ws->S must hold m (m + pending) doubles (m = 3k).
+ * @return 0 on success with ws->dx holding the correction; -1 when S is not
+ *         positive definite (P and the pending columns are then unchanged).
+ */
+int vl_la_update_core(double *P, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws, int pending,
+                      double *nis);
+
+/** The landmark block's downdate by ws->PHt's first cols columns (vl_la_update_core), mirrored. */
+void vl_la_downdate_landmarks(double *P, int ld, int n, const vl_la_workspace_t *ws, int cols);
+
+/** W_l W_l^T for the landmark whose first state is col (column-major 3x3): what its block of P
+ * still owes the pending downdate (zero when nothing is pending or col is in the core). */
+void vl_la_pending_share(const vl_la_pending_t *pending, int col, double block[9]);
 
 /**
  * Appends a landmark block at state index n (P grows to n + 3):
@@ -112,8 +147,9 @@ void vl_la_move_block(double *P, int ld, int n, int dst, int src);
  */
 int vl_la_single_correction(const double *P, int ld, int n, const vl_la_obs_t *obs, double *work, double *dx);
 
-/** 3x3 innovation covariance of one observation: H P H^T + R over its pose and landmark blocks. */
-void vl_la_obs_covariance(const double *P, int ld, const vl_la_obs_t *obs, double S[9]);
+/** 3x3 innovation covariance of one observation: H P H^T + R over its pose and landmark blocks,
+ * with the pending downdate applied to its landmark block (pending NULL: none). */
+void vl_la_obs_covariance(const double *P, int ld, const vl_la_obs_t *obs, const vl_la_pending_t *pending, double S[9]);
 
 #ifdef __cplusplus
 }

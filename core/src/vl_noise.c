@@ -11,6 +11,7 @@
 
 #include "vl_estimator_internal.h"
 #include "vl_se3.h"
+#include "vl_update.h"
 
 /* Observations the pixel noise estimate averages over (its forgetting scale). */
 #define VL_PIXEL_NOISE_MEMORY 1000.0
@@ -113,9 +114,10 @@ static void pixel_samples(const vl_estimator_t *e, const vl_la_obs_t *rows, uint
                           int sparse, double *samples, uint32_t *n)
 {
     static const double share[3] = {1.0, 0.5, 1.0};
+    const vl_la_pending_t pending = vl_update_pending(e);
     for (uint32_t i = from; i < to; ++i) {
         double S[9];
-        vl_la_obs_covariance(vl_P_const(e), VL_LD, &rows[i], S); /* H P+ H^T + R */
+        vl_la_obs_covariance(vl_P_const(e), VL_LD, &rows[i], &pending, S); /* H P+ H^T + R */
         for (int r = 0; r < 3; ++r) {
             double res = rows[i].residual[r];
             for (int j = 0; j < 6; ++j) {

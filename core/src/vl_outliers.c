@@ -54,7 +54,7 @@ uint32_t vl_outliers_gate(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t k
     uint32_t failed = 0;
     for (uint32_t i = 0; i < k; ++i) {
         double S[9];
-        vl_la_obs_covariance(vl_P(e), VL_LD, &rows[i], S);
+        vl_la_obs_covariance(vl_P(e), VL_LD, &rows[i], NULL, S); /* before the frame's updates */
         e->work_inlier[i] = vl_mahalanobis3(S, rows[i].residual) <= e->cfg.gate_chi2;
         failed += !e->work_inlier[i];
     }
@@ -124,6 +124,7 @@ uint32_t vl_outliers_partition(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t k)
 uint32_t vl_outliers_rescue(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_la_obs_t *rows, uint32_t first,
                             uint32_t count)
 {
+    const vl_la_pending_t pending = vl_update_pending(e); /* the inliers' update's */
     uint32_t m = 0;
     for (uint32_t i = first; i < first + count; ++i) {
         const uint32_t slot = e->work_slot[i];
@@ -132,7 +133,7 @@ uint32_t vl_outliers_rescue(vl_estimator_t *e, const vl_stereo_frame_t *frame, v
             continue;
         }
         double S[9];
-        vl_la_obs_covariance(vl_P(e), VL_LD, &row, S);
+        vl_la_obs_covariance(vl_P(e), VL_LD, &row, &pending, S);
         if (vl_mahalanobis3(S, row.residual) <= e->cfg.gate_chi2) {
             rows[m] = row;
             e->work_frame_obs[m] = e->work_frame_obs[i]; /* m <= i: nothing yet to read is overwritten */

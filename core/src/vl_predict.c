@@ -13,6 +13,7 @@
 #include "vl_estimator_internal.h"
 #include "vl_linalg.h"
 #include "vl_se3.h"
+#include "vl_update.h"
 #include "vl_work.h"
 
 /*
@@ -239,6 +240,16 @@ void vl_predict_landmark_block(const vl_estimator_t *e, uint32_t slot, double B[
     for (int i = 0; i < 6; ++i) {
         for (int j = 0; j < 6; ++j) {
             B[6 * i + j] = e->P[(size_t)idx[j] * VL_LD + idx[i]];
+        }
+    }
+    if (e->pending_cols > 0) { /* between a frame's update and its downdate (no prediction is deferred then) */
+        const vl_la_pending_t pending = vl_update_pending(e);
+        double share[9];
+        vl_la_pending_share(&pending, (int)c, share);
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) {
+                B[6 * (3 + i) + 3 + j] -= share[3 * j + i];
+            }
         }
     }
     if (e->deferred.steps == 0) {

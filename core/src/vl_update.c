@@ -117,7 +117,8 @@ uint32_t vl_rows_from_held(vl_estimator_t *e)
         }
         if (e->cfg.gate_chi2 > 0.0) {
             double S[9];
-            vl_la_obs_covariance(vl_P(e), VL_LD, &rows[k], S);
+            const vl_la_pending_t pending = vl_update_pending(e);
+            vl_la_obs_covariance(vl_P(e), VL_LD, &rows[k], &pending, S);
             if (vl_mahalanobis3(S, rows[k].residual) > e->cfg.gate_chi2) {
                 e->counters.observations_gated++;
                 continue;
@@ -190,18 +191,46 @@ uint32_t vl_rows_limit(vl_estimator_t *e, vl_la_obs_t *rows, uint32_t m, uint32_
     return cap;
 }
 
+vl_la_pending_t vl_update_pending(const vl_estimator_t *e)
+{
+    const vl_la_pending_t p = {e->work_PHt, vl_la_padded_rows((int)vl_state_dim(e), VL_LD), (int)e->pending_cols};
+    return p;
+}
+
+static vl_la_workspace_t workspace(vl_estimator_t *e)
+{
+    const vl_la_workspace_t ws = {e->work_PHt, e->work_S, e->work_dx, e->cfg.parallel_for, e->cfg.parallel_ctx};
+    return ws;
+}
+
+void vl_update_downdate(vl_estimator_t *e)
+{
+    if (e->pending_cols > 0) {
+        const vl_la_workspace_t ws = workspace(e);
+        vl_la_downdate_landmarks(vl_P(e), VL_LD, (int)vl_state_dim(e), &ws, (int)e->pending_cols);
+        e->pending_cols = 0;
+    }
+}
+
 vl_status_t vl_update_apply(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t m)
 {
     if (m == 0) {
         return VL_OK;
     }
-    vl_la_workspace_t ws = {e->work_PHt, e->work_S, e->work_dx, e->cfg.parallel_for, e->cfg.parallel_ctx};
+    /* The workspaces hold at most VL_OBS_DIM * VL_MAX_LANDMARKS columns; a frame's rows never
+     * exceed them (one row block per window landmark), so this only guards the invariant. */
+    if (e->pending_cols + VL_OBS_DIM * m > VL_OBS_DIM * VL_MAX_LANDMARKS) {
+        vl_update_downdate(e);
+    }
+    const vl_la_workspace_t ws = workspace(e);
     const uint32_t n = vl_state_dim(e);
     double nis = 0.0;
-    if (vl_la_update(vl_P(e), VL_LD, (int)n, rows, (int)m, &ws, &nis) != 0 || !vl_all_finite(e->work_dx, (int)n)) {
+    if (vl_la_update_core(vl_P(e), VL_LD, (int)n, rows, (int)m, &ws, (int)e->pending_cols, &nis) != 0 ||
+        !vl_all_finite(e->work_dx, (int)n)) {
         e->counters.numerical_failures++;
         return VL_ERR_NOT_POSITIVE_DEFINITE;
     }
+    e->pending_cols += VL_OBS_DIM * m;
     /* X <- exp(dx) X on SE_{K+1}(3): every position turns with the rotation
      * correction and moves by J_l(phi) times its own translation correction. */
     const double *dx = e->work_dx;

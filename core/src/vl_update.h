@@ -56,9 +56,17 @@ uint32_t vl_rows_from_held(vl_estimator_t *e);
 
 /**
  * Joint update with the first m rows, then the state correction it gives
- * (left in e->work_dx). Counts observations_used, or numerical_failures.
+ * (left in e->work_dx). The downdate of P's landmark block is left pending
+ * (e->pending_cols; vl_update_pending, vl_update_downdate): the core's rows and
+ * columns are current at once. Counts observations_used, or numerical_failures.
  * @return VL_OK, or VL_ERR_NOT_POSITIVE_DEFINITE with P and the state untouched.
  */
 vl_status_t vl_update_apply(vl_estimator_t *e, const vl_la_obs_t *rows, uint32_t m);
+
+/** The downdate of P's landmark block the updates left pending (none: cols 0). */
+vl_la_pending_t vl_update_pending(const vl_estimator_t *e);
+
+/** Applies the pending downdate (vl_update_apply): P is then current everywhere. */
+void vl_update_downdate(vl_estimator_t *e);
 
 #endif /* VISLAM_VL_UPDATE_H */

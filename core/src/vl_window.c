@@ -486,10 +486,10 @@ static int eviction_victim(const vl_estimator_t *e)
     return victim;
 }
 
-void vl_window_admit(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_candidates_t *c)
+void vl_window_admit(vl_estimator_t *e, const vl_stereo_obs_t *obs, vl_candidates_t *c)
 {
     for (uint32_t b = 0; b < e->num_broken; ++b) {
-        const vl_stereo_obs_t *o = &frame->obs[e->work_broken[b]];
+        const vl_stereo_obs_t *o = &obs[e->work_broken[b]];
         const double disparity = o->u_left - o->u_right;
         if (disparity_admissible(e, disparity)) {
             add_candidate(e, c, e->work_broken[b], disparity);
@@ -506,7 +506,7 @@ void vl_window_admit(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_candi
     }
     const uint32_t limit = e->cfg.max_admissions;
     for (uint32_t i = 0; i < c->count; ++i) {
-        const vl_stereo_obs_t *o = &frame->obs[c->item[i].obs];
+        const vl_stereo_obs_t *o = &obs[c->item[i].obs];
         if (limit > 0 && i >= limit) {
             e->counters.landmarks_deferred += c->count - i;
             break;

@@ -12,18 +12,6 @@
 
 #include "vislam/vislam.h"
 
-/** Candidate for admission: a frame observation and its rank. */
-typedef struct {
-    uint32_t obs; /**< index in the frame */
-    double score; /**< higher is admitted first */
-} vl_candidate_t;
-
-/** Admission candidates of one frame (on the stack of vl_update: a few KiB). */
-typedef struct {
-    vl_candidate_t item[VL_MAX_FRAME_FEATURES];
-    uint32_t count;
-} vl_candidates_t;
-
 /**
  * Sorts a frame's observations: those of window landmarks become update rows in
  * e->work_rows (with work_slot, work_frame_obs) and mark their slot seen; the
@@ -41,11 +29,11 @@ int vl_window_find_slot(const vl_estimator_t *e, int32_t id);
 void vl_window_retire(vl_estimator_t *e);
 
 /**
- * Admits the candidates and the restarts of broken tracks, best first, evicting
- * unobserved landmarks when the window is full; then drops the pending tracks
- * this frame did not continue.
+ * Admits the candidates and the restarts of broken tracks (indices into the
+ * frame's observations obs), best first, evicting unobserved landmarks when the
+ * window is full; then drops the pending tracks this frame did not continue.
  */
-void vl_window_admit(vl_estimator_t *e, const vl_stereo_frame_t *frame, vl_candidates_t *candidates);
+void vl_window_admit(vl_estimator_t *e, const vl_stereo_obs_t *obs, vl_candidates_t *candidates);
 
 /** A window landmark as the API hands it out: world position and 3x3 covariance. */
 void vl_window_landmark(const vl_estimator_t *e, uint32_t slot, vl_landmark_t *out);

@@ -56,6 +56,29 @@ uint64_t vl_work_joint_update(uint32_t n_states, uint32_t k_obs)
     return pht + s + chol + whiten + dx + downdate + correct;
 }
 
+/* The lower triangle of the landmark block (n - VL_CORE_DIM states) less m rows' product. */
+static uint64_t landmark_downdate(uint64_t n, uint64_t m)
+{
+    const uint64_t nl = n > VL_CORE_DIM ? n - VL_CORE_DIM : 0u;
+    return nl * (nl + 1u) * m;
+}
+
+uint64_t vl_work_joint_update_core(uint32_t n_states, uint32_t k_obs, uint32_t pending)
+{
+    if (k_obs == 0) {
+        return 0;
+    }
+    const uint64_t n = n_states, k = k_obs, m = 3u * k_obs, p = pending;
+    /* The pending rows' share of P H^T: H_l W_l per observation, then the landmark rows' product. */
+    const uint64_t share = p > 0 ? 2u * 9u * p * k + 2u * (n - VL_CORE_DIM) * p * m : 0u;
+    return vl_work_joint_update(n_states, k_obs) - landmark_downdate(n, m) + share;
+}
+
+void vl_work_downdate(vl_estimator_t *e, uint32_t n, uint32_t rows)
+{
+    add(e, &e->work.update, landmark_downdate(n, rows));
+}
+
 void vl_work_begin(vl_estimator_t *e)
 {
     memset(&e->work, 0, sizeof(e->work));
@@ -135,12 +158,13 @@ void vl_work_ransac(vl_estimator_t *e, uint32_t n, uint32_t k, uint32_t hypothes
 
 void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint32_t k_frame)
 {
-    uint64_t flops = vl_work_joint_update(n, k);
+    uint64_t flops = vl_work_joint_update_core(n, k, 0u);
     if (adapted) {
-        /* Pixel noise: each row's posterior check and residual, a median of 3 k values;
+        /* Pixel noise: each row's posterior check (its landmark block less the update's
+         * pending downdate) and residual, a median of 3 k values;
          * velocity noise: the correction and its 6x6 covariance to the body frame (two
          * 6x6 products and a 6-vector), a few 3x3 sums. */
-        flops += (uint64_t)k_frame * (VL_WORK_OBS_CHECK + VL_WORK_RESIDUAL + 12u) + 1100u;
+        flops += (uint64_t)k_frame * (VL_WORK_OBS_CHECK + VL_WORK_RESIDUAL + 12u + 2u * 9u * 3u * (uint64_t)k) + 1100u;
     }
     add(e, &e->work.update, flops);
     e->work.state_dim = n;
@@ -166,14 +190,17 @@ void vl_work_drift_carry(vl_estimator_t *e, uint32_t count, uint32_t previous)
     add(e, &e->work.update, (uint64_t)count * previous); /* the id lookup, as the two views' */
 }
 
-void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued)
+void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued, uint32_t pending)
 {
-    add(e, &e->work.rescue, (uint64_t)checked * (VL_WORK_ROW + VL_WORK_OBS_CHECK) + vl_work_joint_update(n, rescued));
+    /* Each check reads its landmark block less the pending rows' share (3 x pending twice). */
+    const uint64_t check = VL_WORK_ROW + VL_WORK_OBS_CHECK + 2u * 9u * (uint64_t)pending;
+    add(e, &e->work.rescue, (uint64_t)checked * check + vl_work_joint_update_core(n, rescued, pending));
     e->work.rows += 3u * rescued;
 }
 
 void vl_work_deferred(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t used)
 {
+    /* The whole joint update: its downdate runs at once. */
     add(e, &e->work.update, (uint64_t)checked * (VL_WORK_ROW + VL_WORK_OBS_CHECK) + vl_work_joint_update(n, used));
     e->work.state_dim = n;
     e->work.rows += 3u * used;

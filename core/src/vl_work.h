@@ -15,6 +15,15 @@
  */
 uint64_t vl_work_joint_update(uint32_t n_states, uint32_t k_obs);
 
+/**
+ * The part of it that runs before the pose (vl_la_update_core): all but the landmark block's
+ * downdate, plus the share of `pending` rows whose downdate is still to come.
+ */
+uint64_t vl_work_joint_update_core(uint32_t n_states, uint32_t k_obs, uint32_t pending);
+
+/** The landmark block's downdate by `rows` pending rows on n states (counted as update). */
+void vl_work_downdate(vl_estimator_t *e, uint32_t n, uint32_t rows);
+
 /** Starts a vl_propagate or vl_update call: its work so far is zero. */
 void vl_work_begin(vl_estimator_t *e);
 
@@ -37,7 +46,8 @@ void vl_work_gate(vl_estimator_t *e, uint32_t k);
 /** RANSAC over k observations with the given hypotheses, on an n-state joint covariance. */
 void vl_work_ransac(vl_estimator_t *e, uint32_t n, uint32_t k, uint32_t hypotheses);
 
-/** The joint update with k observations on n states, then (adapted) the noise adaptation over the k_frame rows it reads. */
+/** The joint update with k observations on n states up to the landmark block's downdate, then (adapted) the noise
+ * adaptation over the k_frame rows it reads. */
 void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint32_t k_frame);
 
 /** The stereo rows' white noise: a sample per observation and their capped mean (or median). */
@@ -49,8 +59,9 @@ void vl_work_two_view(vl_estimator_t *e, uint32_t count, uint32_t previous, uint
 /** A sparse frame's tracks found moving on their own, carried over from the previous frame: the id lookup. */
 void vl_work_drift_carry(vl_estimator_t *e, uint32_t count, uint32_t previous);
 
-/** The rescue pass: checked observations re-linearized and gated, then the joint update of the rescued ones. */
-void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued);
+/** The rescue pass: checked observations re-linearized and gated, then the joint update of the rescued ones up to
+ * the landmark block's downdate, against `pending` rows whose downdate is still to come. */
+void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued, uint32_t pending);
 
 /** The deferred observations after the pose: checked re-linearized and gated, then the joint update of the used. */
 void vl_work_deferred(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t used);

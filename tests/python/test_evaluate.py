@@ -247,8 +247,9 @@ def test_frame_stats_are_the_running_counters_and_feed_segments(vislam_run, tmp_
     assert rows.shape == (len(read_tum(traj)), len(header) - 1)
     assert np.allclose(rows[:, 0], read_tum(traj).times)
     # a line is written when its frame's pose is out: the end of the run hands the window to the map,
-    # and the last frame's deferred observations are applied after its pose
-    after_pose = ("landmarks_marginalized", "observations_used", "observations_deferred_used",
+    # and after the last frame's pose come its window's upkeep and its deferred observations
+    after_pose = ("landmarks_marginalized", "landmarks_initialized", "landmarks_deferred", "landmarks_evicted",
+                  "tracks_broken", "window_peak", "observations_used", "observations_deferred_used",
                   "observations_deferred_dropped", "observations_gated")
     for name in counters:
         last = rows[-1, header.index(name) - 1]

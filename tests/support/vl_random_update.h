@@ -1,6 +1,7 @@
 /**
  * @file vl_random_update.h
- * @brief A fixed random joint update: covariance and observations (vl_bench_update, test_worker).
+ * @brief A fixed random joint update: covariance and observations (vl_bench_update, test_worker,
+ *        test_estimator).
  */
 #ifndef VISLAM_TESTS_VL_RANDOM_UPDATE_H
 #define VISLAM_TESTS_VL_RANDOM_UPDATE_H

@@ -92,7 +92,7 @@ typedef struct {
     int64_t ns;
     vl_work_t work;
     uint64_t frame_flops; /* work plus the IMU steps' since the previous frame: the frame period's work */
-    int64_t deferred_ns;  /* vl_session_finish after the pose: the deferred observations (0: none) */
+    int64_t deferred_ns;  /* vl_session_finish after the pose: the frame's work after it (0: none) */
     uint64_t deferred_flops;
     int64_t utime;
     int pass;
@@ -574,7 +574,7 @@ static int run_in_process(const log_t *lg, step_t *steps, size_t *nsteps, double
                 since_frame = 0;
                 s->deferred_ns = 0;
                 s->deferred_flops = 0;
-                if (vl_deferred_pending(vl_session_estimator(&session)) > 0) {
+                if (vl_deferred_due(vl_session_estimator(&session))) {
                     const int64_t t2 = vl_clock_monotonic_ns();
                     (void)vl_session_finish(&session);
                     s->deferred_ns = vl_clock_monotonic_ns() - t2;
@@ -1183,7 +1183,7 @@ typedef struct {
     double work_p50, work_max, work_mean;
     summary_t prop_work;     /* each IMU step's work */
     summary_t frame_work;    /* each frame step's work plus the IMU steps' before it */
-    summary_t deferred;      /* the deferred observations' update after the pose, where there was one: us */
+    summary_t deferred;      /* the frame's work after the pose (vl_session_finish), where there was some: us */
     summary_t deferred_work; /* its work */
     const step_t *costliest; /* slowest step */
     const step_t *heaviest;  /* step with the most work */
@@ -1673,8 +1673,8 @@ int main(int argc, char **argv)
         "  work per IMU step: p50 %.3g  max %.3g flops; per frame with the IMU steps before it: p50 %.3g  max %.3g\n",
         res.prop_work.p50, res.prop_work.max, res.frame_work.p50, res.frame_work.max);
     if (res.deferred_work.n > 0) {
-        fprintf(stderr, "  work of the deferred observations after the pose (%zu frames): p50 %.3g  max %.3g flops\n",
-                res.deferred_work.n, res.deferred_work.p50, res.deferred_work.max);
+        fprintf(stderr, "  work after the pose (%zu frames): p50 %.3g  max %.3g flops\n", res.deferred_work.n,
+                res.deferred_work.p50, res.deferred_work.max);
     }
     const step_t *c = res.costliest;
     fprintf(stderr,

@@ -552,7 +552,7 @@ int main(int argc, char **argv)
         if (o.timing && step != VL_SESSION_STEP_NONE) {
             vl_latency_record(step == VL_SESSION_STEP_UPDATE ? &t_update : &t_propagate, t1 - t0);
         }
-        const int deferred = vl_deferred_pending(est) > 0;
+        const int deferred = vl_deferred_due(est);
         (void)vl_session_finish(&session);
         if (o.timing && deferred) {
             vl_latency_record(&t_deferred, vl_clock_monotonic_us() - t1);

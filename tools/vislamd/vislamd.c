@@ -188,7 +188,7 @@ typedef struct {
 
     /* timing */
     vl_latency_t lat_all, lat_step[2];
-    vl_latency_t lat_deferred; /**< vl_session_finish after a frame whose update deferred observations */
+    vl_latency_t lat_deferred; /**< vl_session_finish after a frame: its work after the pose */
     int64_t budget_us;
     int64_t intervals[INTERVAL_WINDOW];
     unsigned num_intervals, next_interval;
@@ -817,13 +817,14 @@ static void handle_input(daemon_t *d, vl_log_event_kind_t kind, const lcm_recv_b
         vl_warm_note_frame(&d->warm, utime, d->handler_mono_us);
     }
     finish_step(d, step == VL_SESSION_STEP_UPDATE ? STEP_UPDATE : STEP_PROPAGATE, t0, utime);
-    publish_map(d); /* after the pose and outside the step's time: the map is not what waits on it */
-    if (vl_deferred_pending(vl_session_estimator(&d->session)) > 0) {
-        /* What the update's time bound left out, applied now that the pose is out. */
+    if (vl_deferred_due(vl_session_estimator(&d->session))) {
+        /* The frame's work that does not move the pose (the landmarks' downdate, the window's
+         * upkeep, what the update's time bound left out), done now that the pose is out. */
         const int64_t f0 = vl_clock_monotonic_us();
         (void)vl_session_finish(&d->session);
         vl_latency_record(&d->lat_deferred, vl_clock_monotonic_us() - f0);
     }
+    publish_map(d); /* after the pose and outside the step's time: the map is not what waits on it */
     d->free_ns = vl_clock_realtime_ns();
 }
 

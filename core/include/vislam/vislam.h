@@ -154,11 +154,12 @@ typedef void (*vl_parallel_task_fn)(void *arg, uint32_t index);
  * Injected parallel loop: runs task(arg, i) once for every i in 0..count-1, on
  * any threads in any order, and returns when all have finished. The core cuts
  * its work into a fixed partition of disjoint blocks, the same whatever runs
- * them, so the results are bit-identical to the serial loop's. Only updates
- * with 16 Mflop or more in those blocks use it (the costly ones). A call with
+ * them, so the results are bit-identical to the serial loop's. Only loops
+ * with 8 Mflop or more in those blocks use it (the costly ones). A call with
  * count 0 runs nothing: it announces loops soon (the update calls it first, so
  * that a sleeping worker wakes while the serial part runs). Called from
- * vl_update only; it must not allocate if the caller's step must not.
+ * vl_update and vl_update_deferred only; it must not allocate if the caller's
+ * step must not.
  */
 typedef void (*vl_parallel_for_fn)(void *ctx, vl_parallel_task_fn task, void *arg, uint32_t count);
 
@@ -359,6 +360,18 @@ typedef struct {
     double covariance[9]; /**< its covariance from pixel noise alone, m^2 */
 } vl_pending_track_t;
 
+/** A frame observation that may become a window landmark, and its rank. */
+typedef struct {
+    uint32_t obs; /**< index in the frame */
+    double score; /**< higher is admitted first */
+} vl_candidate_t;
+
+/** A frame's admission candidates. */
+typedef struct {
+    vl_candidate_t item[VL_MAX_FRAME_FEATURES];
+    uint32_t count;
+} vl_candidates_t;
+
 /** One observation's rows of the joint update (internal workspace). */
 typedef struct {
     double H_pose[18];    /**< 3x6 row-major, d y / d xi */
@@ -503,6 +516,12 @@ typedef struct {
                                                     motion its fellows agree on, or drifted against the
                                                     velocities' (two-view matching) */
     uint32_t num_work_drift;                   /**< the frame's observations when it is sparse, else 0 */
+    /** The last vl_update's work after its pose, which vl_update_deferred (or else the next input)
+     * does: the downdate of P's landmark block by work_PHt's first pending_cols columns
+     * (vl_la_pending_t), then the window's upkeep with the frame's candidates (indices into prev_obs). */
+    int frame_open;
+    uint32_t pending_cols;
+    vl_candidates_t work_candidates;
     /** The last frame's inliers its update deferred under the time bound, as indices into prev_obs:
      * vl_update_deferred applies them; the next input drops them. */
     uint32_t num_held;
@@ -666,28 +685,38 @@ vl_status_t vl_propagate(vl_estimator_t *e, const vl_imu_sample_t *imu);
 
 /**
  * Applies one stereo frame: propagates to frame->utime if it is later than the
- * state, updates with the observed window landmarks (mode SLAM or MAPPING),
- * marginalizes landmarks whose tracks ended, and admits new ones.
+ * state and updates with the observed window landmarks (mode SLAM or MAPPING).
+ * On return the pose and its covariance are final; what does not move them, the
+ * downdate of the landmarks' covariance block, the marginalization of landmarks
+ * whose tracks ended and the admission of new ones, is left to vl_update_deferred
+ * (or to the next vl_propagate, vl_update, vl_reset or vl_flush_landmarks, which do
+ * it first). vl_get_pose and vl_get_landmarks read the state correctly meanwhile.
  */
 vl_status_t vl_update(vl_estimator_t *e, const vl_stereo_frame_t *frame);
 
 /**
- * Applies the inliers the last vl_update left out under its time bound
- * (max_update_work, max_update_observations), re-linearized at the corrected state
- * and checked against the gate again, within max_deferred_work (apply_deferred on).
- * Call it after the frame's pose is out and before the next input: the frame's
- * latency is then vl_update's alone, and what the bound left out still reaches the
- * state. The next vl_propagate, vl_update or vl_reset drops what was not applied
- * (counted in observations_deferred_dropped, as are those past max_deferred_work).
- * Its work is read with vl_get_work like a step's (stage update); with nothing
- * to apply it returns at once and leaves vl_get_work as the last step left it.
+ * Completes the last vl_update after its pose: the landmark block's downdate and
+ * the window's upkeep (vl_update), then the inliers that vl_update left out under its
+ * time bound (max_update_work, max_update_observations), re-linearized at the
+ * corrected state and checked against the gate again, within max_deferred_work
+ * (apply_deferred on). Call it after the frame's pose is out and before the next
+ * input: the frame's latency is then vl_update's alone, and what the bound left
+ * out still reaches the state. The next vl_propagate, vl_update or vl_reset does the
+ * frame's downdate and upkeep itself and drops the held inliers (counted in
+ * observations_deferred_dropped, as are those past max_deferred_work). Its work is
+ * read with vl_get_work like a step's (stages update and window); with nothing to do
+ * (vl_deferred_due 0) it returns at once and leaves vl_get_work as the last step left it.
  * @return VL_OK (also with nothing to apply), VL_ERR_NULL, VL_ERR_NOT_POSITIVE_DEFINITE
  *         (counted in numerical_failures, as vl_update's), or VL_RESET after a divergence.
  */
 vl_status_t vl_update_deferred(vl_estimator_t *e);
 
-/** Observations vl_update_deferred would check now: 0 when it has nothing to do (and for NULL). */
+/** Observations vl_update_deferred would check now: 0 when there are none (and for NULL). */
 uint32_t vl_deferred_pending(const vl_estimator_t *e);
+
+/** Nonzero when vl_update_deferred has work to do: after every vl_update that reached its
+ * update (mode SLAM or MAPPING), until that work is done (0 for NULL). */
+int vl_deferred_due(const vl_estimator_t *e);
 
 /**
  * Reads the current pose and its marginal covariance. Never hands out a
