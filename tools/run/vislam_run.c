@@ -456,7 +456,7 @@ int main(int argc, char **argv)
     static vl_session_t session;
     static vl_latency_t t_update;
     static vl_latency_t t_propagate;
-    static vl_latency_t t_deferred; /* after a frame's pose, when its update deferred observations */
+    static vl_latency_t t_deferred; /* after a frame's pose: its work after the pose (vl_session_finish) */
     static vl_log_reader_t reader;
     static vl_log_event_t ev;
     vl_latency_reset(&t_update);
