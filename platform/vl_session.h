@@ -173,9 +173,9 @@ vl_session_step_t vl_session_input(vl_session_t *s, const vl_log_event_t *ev, vl
  * The part of the last input's work that may wait until its pose is out: the
  * landmarks' downdate and the window's upkeep of a frame, and the observations
  * its update deferred under its time bound (vl_update_deferred). Every program
- * calls it after vl_session_input, before
- * the next input, so that the same inputs give the same estimate everywhere;
- * the pose's latency is vl_session_input's alone. A core re-initialization it
+ * calls it after vl_session_input, before the next input, so that the same
+ * inputs give the same estimate everywhere; the pose's latency is
+ * vl_session_input's alone. A core re-initialization it
  * leads to is counted and reported as vl_session_input's are (on_event).
  * @return VL_OK when there was nothing to do, else vl_update_deferred's status
  */

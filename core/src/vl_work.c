@@ -161,10 +161,10 @@ void vl_work_update(vl_estimator_t *e, uint32_t n, uint32_t k, int adapted, uint
     uint64_t flops = vl_work_joint_update_core(n, k, 0u);
     if (adapted) {
         /* Pixel noise: each row's posterior check (its landmark block less the update's
-         * pending downdate) and residual, a median of 3 k values;
+         * pending rows' share, six multiply-adds a row) and residual, a median of 3 k values;
          * velocity noise: the correction and its 6x6 covariance to the body frame (two
          * 6x6 products and a 6-vector), a few 3x3 sums. */
-        flops += (uint64_t)k_frame * (VL_WORK_OBS_CHECK + VL_WORK_RESIDUAL + 12u + 2u * 9u * 3u * (uint64_t)k) + 1100u;
+        flops += (uint64_t)k_frame * (VL_WORK_OBS_CHECK + VL_WORK_RESIDUAL + 12u + 12u * 3u * (uint64_t)k) + 1100u;
     }
     add(e, &e->work.update, flops);
     e->work.state_dim = n;
@@ -192,8 +192,8 @@ void vl_work_drift_carry(vl_estimator_t *e, uint32_t count, uint32_t previous)
 
 void vl_work_rescue(vl_estimator_t *e, uint32_t n, uint32_t checked, uint32_t rescued, uint32_t pending)
 {
-    /* Each check reads its landmark block less the pending rows' share (3 x pending twice). */
-    const uint64_t check = VL_WORK_ROW + VL_WORK_OBS_CHECK + 2u * 9u * (uint64_t)pending;
+    /* Each check reads its landmark block less the pending rows' share: six multiply-adds a row. */
+    const uint64_t check = VL_WORK_ROW + VL_WORK_OBS_CHECK + 12u * (uint64_t)pending;
     add(e, &e->work.rescue, (uint64_t)checked * check + vl_work_joint_update_core(n, rescued, pending));
     e->work.rows += 3u * rescued;
 }

@@ -319,9 +319,10 @@ typedef struct {
                               prediction applied to the rest of P (one structured rank-6 pass), flops */
     uint64_t gate;       /**< innovation gate of the tracked observations, flops */
     uint64_t ransac;     /**< 1-point RANSAC: hypotheses x (one-row correction + residuals), flops */
-    uint64_t update;     /**< the joint update on the inliers and the noise adaptation after it, flops */
+    uint64_t update;     /**< the joint update on the inliers (a step's without the landmark block's
+                              downdate, which vl_update_deferred's counts) and the noise adaptation, flops */
     uint64_t rescue;     /**< re-checking the rejected rows and the joint update of the rescued ones, flops */
-    uint64_t window;     /**< update rows, marginalizations and admissions of the window, flops */
+    uint64_t window;     /**< update rows (a step's), marginalizations and admissions (vl_update_deferred's), flops */
     uint32_t state_dim;  /**< joint state dimension n at the update (or prediction), states */
     uint32_t rows;       /**< rows m of the joint updates (3 per observation used), rows */
     uint32_t hypotheses; /**< RANSAC hypotheses tried */
