@@ -54,7 +54,6 @@ static uint64_t stage_sum(const vl_work_t *w)
     return w->predict + w->gate + w->ransac + w->update + w->rescue + w->window;
 }
 
-/* The joint update's leading terms for n states and m rows (the downdate, the whitening, the factorization). */
 /* The update's leading terms before the pose: the whitening, the factorization and the core's
  * rows and columns of the downdate; the landmark block's downdate comes after the pose. */
 static double update_leading(double n, double m)
