@@ -587,7 +587,7 @@ vl_status_t vl_update_deferred(vl_estimator_t *e)
     if (e == NULL) {
         return VL_ERR_NULL;
     }
-    if (!e->frame_open && e->num_held == 0) {
+    if (!vl_deferred_due(e)) {
         return VL_OK; /* the last step's work stays readable */
     }
     vl_work_begin(e);

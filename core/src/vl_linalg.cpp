@@ -523,9 +523,8 @@ extern "C" int vl_la_update_core(double *Pbuf, int ld, int n, const vl_la_obs_t 
     subtract_product_bt(P.leftCols<VL_CORE_DIM>(), PHt.topRows(n), PHt.topRows<VL_CORE_DIM>());
     P.topRows<VL_CORE_DIM>().rightCols(n - VL_CORE_DIM) =
         P.bottomRows(n - VL_CORE_DIM).leftCols<VL_CORE_DIM>().transpose();
-    for (Eigen::Index j = 1; j < VL_CORE_DIM; ++j) {
-        P.col(j).head(j) = P.row(j).head(j).transpose();
-    }
+    MatMap core(Pbuf, VL_CORE_DIM, VL_CORE_DIM, Eigen::OuterStride<>(ld));
+    mirror_lower_to_upper(core);
     return 0;
 }
 
@@ -544,9 +543,7 @@ extern "C" void vl_la_downdate_landmarks(double *Pbuf, int ld, int n, const vl_l
     Ppad.bottomRows(np - n).setZero();
     update_blocks blocks = {&Ppad, n, nullptr, &W, VL_CORE_DIM};
     run_blocks(shared, ws, downdate_task, &blocks, block_count(n - VL_CORE_DIM, kPanel));
-    for (Eigen::Index j = VL_CORE_DIM + 1; j < n; ++j) { /* mirrored, so P stays exactly symmetric */
-        P.col(j).segment(VL_CORE_DIM, j - VL_CORE_DIM) = P.row(j).segment(VL_CORE_DIM, j - VL_CORE_DIM).transpose();
-    }
+    mirror_lower_to_upper(P, VL_CORE_DIM); /* so P stays exactly symmetric (the core's columns are already) */
 }
 
 extern "C" int vl_la_update(double *Pbuf, int ld, int n, const vl_la_obs_t *obs, int k, const vl_la_workspace_t *ws,

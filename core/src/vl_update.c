@@ -107,6 +107,7 @@ void vl_rows_drop_held(vl_estimator_t *e)
 uint32_t vl_rows_from_held(vl_estimator_t *e)
 {
     vl_la_obs_t *rows = e->work_rows;
+    const vl_la_pending_t pending = vl_update_pending(e);
     uint32_t k = 0;
     for (uint32_t i = 0; i < e->num_held; ++i) {
         const vl_stereo_obs_t *o = &e->prev_obs[e->held_obs[i]];
@@ -117,7 +118,6 @@ uint32_t vl_rows_from_held(vl_estimator_t *e)
         }
         if (e->cfg.gate_chi2 > 0.0) {
             double S[9];
-            const vl_la_pending_t pending = vl_update_pending(e);
             vl_la_obs_covariance(vl_P(e), VL_LD, &rows[k], &pending, S);
             if (vl_mahalanobis3(S, rows[k].residual) > e->cfg.gate_chi2) {
                 e->counters.observations_gated++;
